@@ -1,0 +1,33 @@
+# RADICAL-RT developer entry points. `make demo` and `make test` work on a fresh machine:
+# they create .venv, install the project, then run.
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= out
+
+.PHONY: demo test venv lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python -m radical_rt.demo --out $(OUT)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check radical_rt replayer monitors perf tests
+	$(BIN)/mypy
+
+bench: $(STAMP)
+	$(BIN)/radical bench --profile full --out perf/results
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -1,0 +1,1 @@
+"""Dashboards and reports; they read only the contract's messages."""

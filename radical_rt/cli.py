@@ -1,0 +1,61 @@
+"""`radical` console script: one entry point, one module per subcommand.
+
+Each subcommand lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``;
+this file only wires them together (lazily, so `radical --help` stays fast and a missing optional
+dependency only affects its own subcommand).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: subcommand -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "synth": ("replayer.synth.cli", "synthesize a MESSENGER-like telemetry archive (MCAP)"),
+    "process": ("radical_rt.batch", "run the calibration engine over archives (batch shell)"),
+    "node": ("radical_rt.node_cli", "run the streaming filter node over Zenoh"),
+    "replay": ("replayer.replay", "publish an archive's input channels over Zenoh"),
+    "record": ("replayer.record", "record radical/<vehicle>/** keys to MCAP"),
+    "monitor": ("monitors.cli", "live dashboards (web, tui)"),
+    "report": ("monitors.report", "paper-style tables and figures from an output archive"),
+    "bench": ("perf.cli", "run the benchmark suite"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser with one sub-parser per available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="radical", description="RADICAL-RT: RIMU calibration and attitude determination")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name and module.startswith(exc.name):
+                continue  # subcommand not built in this version
+            raise
+        p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `radical` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Telemetry simulation, MCAP archives, replay over Zenoh and recording."""

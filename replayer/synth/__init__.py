@@ -1,0 +1,1 @@
+"""Synthetic MESSENGER-like truth and sensor simulation (independent of the filter models)."""
