@@ -1,0 +1,142 @@
+"""Engine state arrays, health bookkeeping, snapshots and checkpoints (no filter math here).
+
+:class:`EngineState` owns every array the engine works on (allocated once), the counters, flags and
+mode, and turns them into output snapshots (SI) and msgpack-able checkpoints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+
+from . import ud
+from .flags import Flag
+from .geometry import Geometry
+from .state import PARAM_GROUPS, StateLayout
+
+
+class EngineState:
+    """Arrays and bookkeeping of the engine for a given state layout and geometry."""
+
+    def __init__(self, layout: StateLayout, geometry: Geometry) -> None:
+        self.layout, self.geo = layout, geometry
+        n = self.n_gyro = geometry.n_gyro
+        ns = self.ns = layout.n_states
+        npar, nr = ns - 3, n - 3
+        self.q = np.array([0.0, 0.0, 0.0, 1.0])  # q_body_from_inertial
+        self.xp = np.zeros(npar)  # parameters, state order (SI)
+        self.U, self.d, self.dx = np.eye(ns), np.ones(ns), np.zeros(ns)
+        self.h, self.r3 = np.zeros(ns), np.zeros(3)
+        self.H_att, self.H_phi = np.zeros((3, 3)), np.zeros((3, 3))
+        self.Wt, self.dWdu, self.dWdv = (np.zeros((3, n)) for _ in range(3))
+        self.Minv, self.Gp, self.N = np.eye(3), np.zeros((3, n)), geometry.N.copy()
+        self.Phi_aa, self.Phi_ap, self.Q_aa = np.eye(3), np.zeros((3, npar)), np.zeros((3, 3))
+        self.z_par, self.H_par = np.zeros(nr), np.zeros((nr, npar))
+        self.acc_i, self.acc_f = np.zeros(2, np.int64), np.zeros(2)
+        self.omega = np.zeros(3)
+        self.ws = ud.UDWorkspace(ns)
+        self.param_idx = np.arange(3, ns, dtype=np.int64)
+        self.excluded = np.zeros(n, dtype=np.bool_)
+        self.flags = int(Flag.NOT_CONVERGED)
+        self.mode = "init"
+        self.t = -math.inf
+        self.att_valid = False
+        self.masked = False
+        self.counters: dict[str, int] = defaultdict(int)
+        self.nis_sum: dict[str, float] = defaultdict(float)
+        self.diag_last: dict[str, tuple] = {}
+        self.last_valid_st: dict[int, float] = {}
+        self.last_numeric = ""
+
+    # ---------------------------------------------------------------- outputs
+    def variances(self) -> np.ndarray:
+        """Diagonal of P (ns,) from the UD factors (O(n²), P not formed)."""
+        ud.variances(self.U, self.d, self.ws.var)
+        return self.ws.var.copy()
+
+    def estimates(self) -> dict[str, list[float]]:
+        """Parameter estimates per group, SI."""
+        return {g: self.xp[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
+
+    def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
+        """Parameter 1σ per group, SI."""
+        var = self.variances() if var is None else var
+        return {g: np.sqrt(var[self.layout[g]]).tolist() for g in PARAM_GROUPS}
+
+    def update_mode(self, t: float) -> None:
+        """Stale-tracker flags, convergence test on the UD variances, and the mode."""
+        for j, bit in ((1, Flag.ST1_STALE), (2, Flag.ST2_STALE)):
+            if t - self.last_valid_st.get(j, -math.inf) > self.si.st_stale_s:  # type: ignore[attr-defined]
+                self.flags |= bit
+            else:
+                self.flags &= ~int(bit)
+        if not self.att_valid:
+            self.mode = "init"
+            return
+        var = self.variances()[3:]
+        conv = bool(np.all(np.sqrt(var) <= np.asarray(self.si.conv_sigma)))  # type: ignore[attr-defined]
+        if conv:
+            self.flags &= ~int(Flag.NOT_CONVERGED)
+        else:
+            self.flags |= Flag.NOT_CONVERGED
+        if self.excluded.any() or self.flags & Flag.NUMERIC:
+            self.mode = "degraded"
+        else:
+            self.mode = "converged" if conv else "converging"
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything a telemetry packet may contain (SI, plain Python types)."""
+        var = self.variances()
+        return {
+            "t": self.t, "q_body_from_inertial": self.q.tolist(), "flags": int(self.flags),
+            "mode": self.mode, "omega_body": self.omega.tolist(), "est": self.estimates(),
+            "sigma": self.sigmas(var), "att_sigma": np.sqrt(var[:3]).tolist(),
+            "residuals": self.residual_stats(), "counters": dict(self.counters),
+            "excluded": [int(i) for i in np.nonzero(self.excluded)[0]],
+        }
+
+    def residual_stats(self) -> dict[str, Any]:
+        """Last innovation, its 1σ and NIS per measurement kind, and mean NIS so far."""
+        out: dict[str, Any] = {}
+        for kind, (innov, sig, nis) in self.diag_last.items():
+            used = self.counters.get(f"{kind}_used", 0)
+            out[kind] = {"innov": np.atleast_1d(innov).tolist(), "sigma": np.atleast_1d(sig).tolist(),
+                         "nis": float(nis),
+                         "nis_mean": self.nis_sum.get(kind, 0.0) / used if used else None}
+        return out
+
+    # ---------------------------------------------------------------- checkpoints
+    _ARRAYS = ("q", "xp", "U", "d", "N", "omega", "excluded")
+
+    def get_state(self) -> dict[str, Any]:
+        """msgpack-able checkpoint of the estimates, UD factors and bookkeeping."""
+        arrays = {k: {"dtype": getattr(self, k).dtype.str, "shape": list(getattr(self, k).shape),
+                      "data": getattr(self, k).tobytes()} for k in self._ARRAYS}
+        return {"arrays": arrays, "flags": int(self.flags), "mode": self.mode, "t": self.t,
+                "att_valid": self.att_valid, "counters": dict(self.counters),
+                "nis_sum": dict(self.nis_sum),
+                "last_valid_st": {str(k): v for k, v in self.last_valid_st.items()}}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a checkpoint made by :meth:`get_state` (same layout and geometry)."""
+        for k in self._ARRAYS:
+            a = state["arrays"][k]
+            arr = np.frombuffer(a["data"], dtype=np.dtype(a["dtype"])).reshape(a["shape"])
+            if arr.shape != getattr(self, k).shape:
+                raise ValueError(f"checkpoint array {k} has shape {arr.shape}, "
+                                 f"expected {getattr(self, k).shape}")
+            getattr(self, k)[...] = arr
+        self.flags, self.mode, self.t = int(state["flags"]), state["mode"], float(state["t"])
+        self.att_valid = bool(state["att_valid"])
+        self.counters = defaultdict(int, state["counters"])
+        self.nis_sum = defaultdict(float, state["nis_sum"])
+        self.last_valid_st = {int(k): v for k, v in state["last_valid_st"].items()}
+
+
+def _psl(layout: StateLayout, group: str) -> slice:
+    """Slice of a group inside the parameter vector xp (state index − 3)."""
+    s = layout[group]
+    return slice(s.start - 3, s.stop - 3)

@@ -1,0 +1,237 @@
+"""The filter's gyro, parity and star-tracker models and their Jacobians (Numba kernels).
+
+Parameter vector ``xp`` (5n + 3) in state order: b (rad/s), lam, mu, du (rad), dv (rad), phi2 (rad,
+body axes) — see :mod:`radical_rt.state`. The attitude error ``dtheta`` (body, rad) is defined in
+:mod:`radical_rt.conventions`.
+
+Gyro model (CONTRACT §1.5): true axes ``w̃_i = normalize(w_i − du_i v_i − dv_i u_i)``; increments
+``y_i = (1 + lam_i + mu_i·sgn(g_i))·g_i + b_i·dt``, ``g_i = w̃_i·theta``. The filter inverts it with
+its estimates: ``c_i = (y_i − b̂_i dt) / (1 + lam_i + mu_i·sgn(y_i − b̂_i dt))`` and the
+least-squares body increment ``theta_hat = Gp c`` with ``Gp = (W̃ W̃ᵀ)⁻¹ W̃`` over active gyros.
+
+Error propagation over one sample: ``dtheta_k = R(theta_hat)ᵀ dtheta_{k−1} + F_k δp + w_k``, where
+``F_k = ∂theta_hat/∂p̂`` (3 × 5n; exact derivative of the correction, checked by finite
+differences). Parity: ``z = Nᵀ c`` with N (n, n−3) the orthonormal null basis of W̃; its
+measurement row is ``H = −∂z/∂p̂`` (δ = true − estimate).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jit import kernel
+from .rotation import (
+    dcm_to_quat,
+    quat_mul_into,
+    quat_normalize_inplace,
+    quat_to_dcm,
+    rotvec_to_dcm,
+    rotvec_to_quat_into,
+)
+
+
+@kernel
+def refresh_geometry(xp, W, U_ax, V_ax, N_ref, Wt, dWdu, dWdv, Minv, Gp, N):
+    """Rebuild the estimated sense axes and everything derived from them.
+
+    xp (5n+3,) parameters; W, U_ax, V_ax (3, n) nominal triads; N_ref (n, n−3) previous parity basis
+    (for continuity). Writes Wt (3, n) estimated unit axes, dWdu/dWdv (3, n) = ∂w̃_i/∂du_i, ∂w̃_i/∂dv_i,
+    Minv (3, 3) = (W̃W̃ᵀ)⁻¹, Gp (3, n) = Minv W̃, N (n, n−3) orthonormal null basis of W̃.
+    Returns 0, or 1 if W̃W̃ᵀ is singular.
+    """
+    n = W.shape[1]
+    du = xp[3 * n:4 * n]
+    dv = xp[4 * n:5 * n]
+    for i in range(n):
+        a0 = W[0, i] - du[i] * V_ax[0, i] - dv[i] * U_ax[0, i]
+        a1 = W[1, i] - du[i] * V_ax[1, i] - dv[i] * U_ax[1, i]
+        a2 = W[2, i] - du[i] * V_ax[2, i] - dv[i] * U_ax[2, i]
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        Wt[0, i], Wt[1, i], Wt[2, i] = a0 / na, a1 / na, a2 / na
+        wv = Wt[0, i] * V_ax[0, i] + Wt[1, i] * V_ax[1, i] + Wt[2, i] * V_ax[2, i]
+        wu = Wt[0, i] * U_ax[0, i] + Wt[1, i] * U_ax[1, i] + Wt[2, i] * U_ax[2, i]
+        for r in range(3):
+            dWdu[r, i] = (-V_ax[r, i] + Wt[r, i] * wv) / na
+            dWdv[r, i] = (-U_ax[r, i] + Wt[r, i] * wu) / na
+    M = Wt @ Wt.T
+    if abs(np.linalg.det(M)) < 1e-12:
+        return 1
+    Minv[:, :] = np.linalg.inv(M)
+    Gp[:, :] = Minv @ Wt
+    # Parity basis: project the previous basis on null(W̃), then Gram-Schmidt (continuous in W̃).
+    proj = np.eye(n) - Wt.T @ Gp
+    B = proj @ N_ref
+    for c in range(B.shape[1]):
+        for k in range(c):
+            s = 0.0
+            for r in range(n):
+                s += B[r, c] * B[r, k]
+            for r in range(n):
+                B[r, c] -= s * B[r, k]
+        s = 0.0
+        for r in range(n):
+            s += B[r, c] * B[r, c]
+        s = math.sqrt(s)
+        for r in range(n):
+            B[r, c] /= s
+    N[:, :] = B
+    return 0
+
+
+@kernel
+def masked_pinv(Wt, active, Minv_out, Gp_out):
+    """Pseudo-inverse over the active gyros only: Gp (3, n) with zero columns for inactive ones.
+
+    active (n,) bool. Returns the number of active gyros, or −1 if they do not span body space.
+    """
+    n = Wt.shape[1]
+    M = np.zeros((3, 3))
+    na = 0
+    for i in range(n):
+        if active[i]:
+            na += 1
+            for r in range(3):
+                for c in range(3):
+                    M[r, c] += Wt[r, i] * Wt[c, i]
+    if na < 3 or abs(np.linalg.det(M)) < 1e-9:
+        return -1
+    Minv_out[:, :] = np.linalg.inv(M)
+    for i in range(n):
+        for r in range(3):
+            s = 0.0
+            if active[i]:
+                for c in range(3):
+                    s += Minv_out[r, c] * Wt[c, i]
+            Gp_out[r, i] = s
+    return na
+
+
+@kernel
+def correct_increment(y, dt, xp, active, c_out, sgn_out, s_out):
+    """Bias/scale-factor corrected increments c (n,) of raw increments y (n,) [rad] over dt [s].
+
+    Writes c_out, sgn_out (sign of y − b̂·dt) and s_out (1 + λ̂ + μ̂·sgn), zero for inactive gyros.
+    """
+    n = y.shape[0]
+    for i in range(n):
+        if not active[i]:
+            c_out[i] = 0.0
+            sgn_out[i] = 0.0
+            s_out[i] = 1.0
+            continue
+        e = y[i] - xp[i] * dt
+        sg = 1.0 if e >= 0.0 else -1.0
+        s = 1.0 + xp[n + i] + xp[2 * n + i] * sg
+        c_out[i] = e / s
+        sgn_out[i] = sg
+        s_out[i] = s
+
+
+@kernel
+def increment_jacobian(c, sgn, s, dt, theta, Wt, dWdu, dWdv, Minv, Gp, active, F):
+    """F (3, 5n) = ∂theta_hat/∂p̂ for the gyro parameters (b, lam, mu, du, dv).
+
+    theta (3,) the body increment Gp c; other arguments as in :func:`correct_increment` and
+    :func:`refresh_geometry`. Columns of inactive gyros are zero.
+    """
+    n = c.shape[0]
+    F[:, :] = 0.0
+    for i in range(n):
+        if not active[i]:
+            continue
+        wth = Wt[0, i] * theta[0] + Wt[1, i] * theta[1] + Wt[2, i] * theta[2]
+        resid = c[i] - wth
+        for r in range(3):
+            F[r, i] = -Gp[r, i] * dt / s[i]
+            F[r, n + i] = -Gp[r, i] * c[i] / s[i]
+            F[r, 2 * n + i] = -Gp[r, i] * sgn[i] * c[i] / s[i]
+        for k in range(2):
+            D = dWdu if k == 0 else dWdv
+            dth = D[0, i] * theta[0] + D[1, i] * theta[1] + D[2, i] * theta[2]
+            col = (3 + k) * n + i
+            for r in range(3):
+                F[r, col] = (Minv[r, 0] * (D[0, i] * resid - Wt[0, i] * dth)
+                             + Minv[r, 1] * (D[1, i] * resid - Wt[1, i] * dth)
+                             + Minv[r, 2] * (D[2, i] * resid - Wt[2, i] * dth))
+
+
+@kernel
+def parity_rows(c, sgn, s, dt, theta, N, dWdu, dWdv, z_acc, H_acc):
+    """Accumulate the parity residual z = Nᵀc (n−3,) and its rows H = −∂z/∂p̂ (n−3, 5n).
+
+    Adds into z_acc (n−3,) and H_acc (n−3, ≥5n) (columns in parameter order b, lam, mu, du, dv).
+    """
+    n = c.shape[0]
+    for r in range(N.shape[1]):
+        z = 0.0
+        for i in range(n):
+            p = N[i, r]
+            z += p * c[i]
+            H_acc[r, i] += p * dt / s[i]
+            H_acc[r, n + i] += p * c[i] / s[i]
+            H_acc[r, 2 * n + i] += p * sgn[i] * c[i] / s[i]
+            H_acc[r, 3 * n + i] += p * (dWdu[0, i] * theta[0] + dWdu[1, i] * theta[1]
+                                        + dWdu[2, i] * theta[2])
+            H_acc[r, 4 * n + i] += p * (dWdv[0, i] * theta[0] + dWdv[1, i] * theta[1]
+                                        + dWdv[2, i] * theta[2])
+        z_acc[r] += z
+
+
+@kernel
+def apply_body_rotation(q, theta, work4, dq):
+    """q_body_from_inertial ← R(theta)ᵀ ∘ q: the body turned by theta (3,) [rad, body axes]."""
+    rotvec_to_quat_into(theta, dq)
+    dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
+    quat_mul_into(dq, q, work4)
+    for k in range(4):
+        q[k] = work4[k]
+    quat_normalize_inplace(q)
+
+
+@kernel
+def left_jacobian(phi):
+    """SO(3) left Jacobian J_l(phi) (3, 3): exp([(phi+δ)×]) ≈ exp([J_l δ ×]) exp([phi×])."""
+    a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    K = np.zeros((3, 3))
+    K[0, 1], K[0, 2], K[1, 0] = -phi[2], phi[1], phi[2]
+    K[1, 2], K[2, 0], K[2, 1] = -phi[0], -phi[1], phi[0]
+    if a < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + (1.0 - math.cos(a)) / (a * a) * K + (a - math.sin(a)) / (a ** 3) * (K @ K)
+
+
+@kernel
+def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out, H_att, H_phi):
+    """Residual r (3,) [rad, tracker axes] and Jacobians of a star-tracker measurement.
+
+    q_meas (4,) = measured q_st_from_inertial; q_body_est (4,) = q_body_from_inertial at the epoch;
+    R_st_from_body_nom (3, 3); phi (3,) the tracker's misalignment estimate (body axes), used when
+    use_phi. Model: R_st_from_inertial = R_nom R(phi)ᵀ R_body_from_inertial; residual
+    r = −rotvec(R_meas R̂ᵀ) = R_nom R(φ̂)ᵀ (δθ + J_l(φ̂) δφ) to first order, so
+    H_att = R_nom R(φ̂)ᵀ and H_phi = H_att J_l(φ̂) (zero if not use_phi).
+    """
+    Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
+    Hm = R_st_from_body_nom @ Rphi.T
+    E = quat_to_dcm(q_meas) @ (Hm @ quat_to_dcm(q_body_est)).T
+    # rotvec of the error rotation E (exact for any angle below π).
+    ax0 = 0.5 * (E[2, 1] - E[1, 2])
+    ax1 = 0.5 * (E[0, 2] - E[2, 0])
+    ax2 = 0.5 * (E[1, 0] - E[0, 1])
+    sn = math.sqrt(ax0 * ax0 + ax1 * ax1 + ax2 * ax2)
+    ang = math.atan2(sn, 0.5 * (E[0, 0] + E[1, 1] + E[2, 2] - 1.0))
+    k = 1.0 if sn < 1e-12 else ang / sn
+    r_out[0], r_out[1], r_out[2] = -k * ax0, -k * ax1, -k * ax2
+    H_att[:, :] = Hm
+    if use_phi:
+        H_phi[:, :] = Hm @ left_jacobian(phi)
+    else:
+        H_phi[:, :] = 0.0
+
+
+@kernel
+def quat_from_tracker(q_meas, R_st_from_body_nom, phi, use_phi):
+    """q_body_from_inertial (4,) implied by a tracker quaternion (inverse of the mounting model)."""
+    Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
+    return dcm_to_quat((R_st_from_body_nom @ Rphi.T).T @ quat_to_dcm(q_meas))

@@ -1,0 +1,211 @@
+"""The event pipeline shared by both shells: decode → clock → order by epoch → engine → packets.
+
+:class:`StreamProcessor` takes input messages in arrival order (the batch shell feeds an archive in
+``log_time`` order, the node feeds what Zenoh delivers) and releases events to the engine in epoch
+order: gyro samples at their reconstructed time, tracker samples at ``t_bus − latency``. A sample is
+released once the watermark ``max(t_bus seen) − latency − reorder_slack`` has passed it, so both
+shells present the engine with the same event sequence and produce bit-identical results.
+Tracker samples older than what was already released are counted (``late_dropped``) and dropped.
+Outputs (telemetry, fault, diag) are produced at window closes (deterministic points).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+
+from .clock import ClockConfig, GyroBatch, SiruClock
+from .filter import Engine
+from .flags import Flag, flag_names
+from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
+from .telemetry import PacketSpec, build, default_packets
+
+INPUT_TOPICS = ("siru", "st1", "st2", "temp")
+
+
+class StreamProcessor:
+    """Engine + clock + reorder buffer + output scheduling for one vehicle."""
+
+    def __init__(self, engine: Engine, clock: SiruClock | None = None,
+                 packets: dict[str, PacketSpec] | None = None, reorder_slack_s: float = 0.05,
+                 diag_period_s: float = 1.0, reject_hold_s: float = 1.0) -> None:
+        self.engine = engine
+        self.clock = clock or SiruClock(ClockConfig(), n_gyro=engine.n_gyro)
+        self.packets = packets or default_packets()
+        self.reorder_slack_s, self.reject_hold_s = reorder_slack_s, reject_hold_s
+        self.diag = PacketSpec("diag", [], period_s=diag_period_s)
+        self.rejected: dict[str, int] = defaultdict(int)
+        self.late_dropped = 0
+        self.temps: dict[str, float] = {}
+        self.last_reject_t = -math.inf
+        self._out: list[tuple[str, dict[str, Any]]] = []
+        self._last_flags = None
+        self._begin_stream()
+        engine.listener = self._on_window
+
+    # ---------------------------------------------------------------- input side
+    def _begin_stream(self) -> None:
+        self.t_max = -math.inf
+        self.last_t: dict[str, float] = {}
+        self.released_t = -math.inf
+        self._gyro: list[GyroBatch] = []
+        self._trk: list[tuple[float, int, int, np.ndarray, int, bool]] = []
+        self._seq = 0
+
+    def feed(self, topic: str, payload: bytes | dict) -> list[tuple[str, dict[str, Any]]]:
+        """Take one input message (topic without the leading slash); return outputs produced."""
+        try:
+            if topic not in INPUT_TOPICS:
+                raise InputError("unknown_topic", f"unknown input topic {topic!r}")
+            msg = unpack(payload)
+            if topic == "siru":
+                self._feed_siru(msg)
+            elif topic == "temp":
+                t, values = decode_temp(msg)
+                self._check_time(topic, t)
+                self.temps.update(values)
+            else:
+                self._feed_tracker(topic, msg)
+        except InputError as exc:
+            self._reject(topic, exc)
+        self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s)
+        return self.take_outputs()
+
+    def _check_time(self, topic: str, t: float) -> None:
+        last = self.last_t.get(topic, -math.inf)
+        if t == last:
+            raise InputError("duplicate", f"{topic} sample at t_bus={t} repeats the previous one")
+        if t < last:
+            raise InputError("time_backwards", f"{topic} t_bus={t} is before the previous {last}")
+        self.last_t[topic] = t
+        self.t_max = max(self.t_max, t)
+
+    def _feed_siru(self, msg: dict) -> None:
+        t_bus, tt, dth, status = decode_siru(msg, self.engine.n_gyro)
+        self._check_time("siru", float(t_bus[0]))
+        self.last_t["siru"] = float(t_bus[-1])
+        self.t_max = max(self.t_max, float(t_bus[-1]))
+        out = self.clock.push(t_bus, tt, dth, status)
+        if len(out.t):
+            self._gyro.append(out)
+
+    def _feed_tracker(self, topic: str, msg: dict) -> None:
+        t, q, n_stars, valid = decode_tracker(msg)
+        self._check_time(topic, t)
+        epoch = t - self.engine.si.latency_st_s
+        if epoch < self.released_t:
+            self.late_dropped += 1
+            return
+        self._seq += 1
+        heapq.heappush(self._trk, (epoch, 1 if topic == "st1" else 2, self._seq, q, n_stars, valid))
+
+    def _reject(self, topic: str, exc: InputError) -> None:
+        self.rejected[exc.reason] += 1
+        self.last_reject_t = self.t_max
+        self.last_reject = f"{topic}: {exc}"
+
+    # ---------------------------------------------------------------- release to the engine
+    def _release(self, watermark: float) -> None:
+        while self._trk and self._trk[0][0] <= watermark:
+            epoch, j, _seq, q, n_stars, valid = heapq.heappop(self._trk)
+            self._release_gyro(epoch)
+            self.released_t = max(self.released_t, epoch)
+            self.engine.tracker(j, epoch, q, n_stars, valid)
+        self._release_gyro(watermark)
+
+    def _release_gyro(self, upto: float) -> None:
+        while self._gyro:
+            b = self._gyro[0]
+            k = int(np.searchsorted(b.t, upto, side="right"))
+            if k == 0:
+                return
+            self.engine.gyro(b.t[:k], b.dt[:k], b.dtheta[:k], b.status[:k], b.bridged[:k],
+                             b.var_extra[:k])
+            self.released_t = max(self.released_t, float(b.t[k - 1]))
+            if k == len(b.t):
+                self._gyro.pop(0)
+            else:
+                self._gyro[0] = GyroBatch(*(a[k:] for a in b))
+                return
+
+    def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
+        """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
+        out = self.clock.flush()
+        if len(out.t):
+            self._gyro.append(out)
+        self._release(math.inf)
+        if next_start is not None:
+            self.clock.reset()
+            if next_start == "cold":
+                self.engine.cold_start()
+            else:
+                self.engine.warm_start(bump=True)
+            self._begin_stream()
+            for spec in self.packets.values():
+                spec.next_t = -math.inf
+            self.diag.next_t = -math.inf
+        return self.take_outputs()
+
+    # ---------------------------------------------------------------- outputs
+    @property
+    def flags(self) -> int:
+        f = int(self.engine.flags)
+        if self.clock.anomaly:
+            f |= Flag.CLOCK_ANOMALY
+        if self.engine.t - self.last_reject_t <= self.reject_hold_s or self.t_max == self.last_reject_t:
+            f |= Flag.INPUT_REJECTED
+        return f
+
+    def flag_names(self) -> list[str]:
+        return flag_names(self.flags)
+
+    def counters(self) -> dict[str, int]:
+        """Summary counters of CONTRACT §5 plus engine and input details."""
+        c, e = self.clock.counters, self.engine.counters
+        out = {"siru_samples": int(c.get("samples", 0)), "siru_repeated": int(c.get("repeated", 0)),
+               "siru_missing": int(c.get("missing", 0)), "siru_bridged": int(c.get("bridged", 0)),
+               "st1_used": e["st1_used"], "st1_edited": e["st1_edited"],
+               "st2_used": e["st2_used"], "st2_edited": e["st2_edited"],
+               "parity_used": e["parity_used"], "parity_edited": e["parity_edited"],
+               "input_rejected": int(sum(self.rejected.values())), "late_dropped": self.late_dropped}
+        return out
+
+    def _on_window(self, t: float) -> None:
+        flags = self.flags
+        if flags != self._last_flags:
+            prev = self._last_flags or 0
+            self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
+                                        "set": flag_names(flags & ~prev),
+                                        "cleared": flag_names(prev & ~flags),
+                                        "detail": self._fault_detail()}))
+            self._last_flags = flags
+        for spec in self.packets.values():
+            if spec.due(t):
+                self._out.append((f"tlm/{spec.name}", build(spec, self)))
+        if self.diag.due(t):
+            self._out.append(("diag", self.diag_message()))
+
+    def _fault_detail(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"mode": self.engine.mode}
+        if self.rejected:
+            d["rejected"] = dict(self.rejected)
+            d["last_reject"] = getattr(self, "last_reject", "")
+        if self.engine.last_numeric:
+            d["numeric"] = self.engine.last_numeric
+        return d
+
+    def diag_message(self) -> dict[str, Any]:
+        e = self.engine
+        return {"v": 1, "t": e.t, "flags": self.flags, "mode": e.mode,
+                "residuals": e.residual_stats(), "counters": self.counters(),
+                "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
+                "clock": self.clock.telemetry(), "temps": dict(self.temps),
+                "ud": {"d_min": float(np.min(e.d)), "d_max": float(np.max(e.d))}}
+
+    def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:
+        out, self._out = self._out, []
+        return out

@@ -1,0 +1,137 @@
+"""Telemetry packets (tlm/small, tlm/medium, tlm/large), their field catalogue and schedule.
+
+A packet is a list of fields from :data:`CATALOGUE` published every ``period_s`` of event time
+(the engine's bus time line), so batch and streaming shells emit identical packets. Defaults follow
+CONTRACT §3; a TOML packet file changes them::
+
+    [packets.small]
+    period_s = 0.1
+    fields = ["seq", "t", "q_body_from_inertial", "flags", "mode"]
+    [packets.large]
+    decimation = 10        # alternatively: every 10th window close (10 Hz base rate)
+    fields = ["seq", "t", "est", "sigma"]
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+SMALL = ["seq", "t", "q_body_from_inertial", "flags", "mode"]
+MEDIUM = SMALL + ["omega_body", "est"]
+LARGE = MEDIUM + ["sigma", "att_sigma", "residuals", "clock", "counters"]
+
+#: field → (description with units, getter(source) → value). source provides engine/stream state.
+CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
+    "seq": ("packet sequence number (per packet kind)", lambda s: None),
+    "t": ("time of the estimate, bus time line [s]", lambda s: s.engine.t),
+    "q_body_from_inertial": ("attitude estimate, scalar-last", lambda s: s.engine.q.tolist()),
+    "flags": ("fault flag bits (CONTRACT §3.1)", lambda s: int(s.flags)),
+    "mode": ("init | converging | converged | degraded", lambda s: s.engine.mode),
+    "omega_body": ("body rate estimate [rad/s]", lambda s: s.engine.omega.tolist()),
+    "est": ("parameter estimates per group, SI", lambda s: s.engine.estimates()),
+    "sigma": ("parameter 1σ per group, SI", lambda s: s.engine.sigmas()),
+    "att_sigma": ("attitude 1σ, body axes [rad]", lambda s: s.engine.snapshot()["att_sigma"]),
+    "residuals": ("last innovations, 1σ and NIS per kind (st1, st2 [rad]; parity [rad])",
+                  lambda s: s.engine.residual_stats()),
+    "clock": ("SIRU clock reconstruction state", lambda s: s.clock.telemetry()),
+    "counters": ("engine and input counters", lambda s: s.counters()),
+    "excluded": ("excluded gyro indices", lambda s: [int(i) for i, e in enumerate(s.engine.excluded) if e]),
+    "flag_names": ("names of the flags set", lambda s: s.flag_names()),
+}
+
+
+class PacketError(ValueError):
+    """Invalid packet configuration; the message names the packet and the problem."""
+
+
+@dataclass
+class PacketSpec:
+    """One packet kind: name (small/medium/large), fields and rate (period or decimation)."""
+
+    name: str
+    fields: list[str]
+    period_s: float | None = None
+    decimation: int | None = None
+    seq: int = 0
+    next_t: float = field(default=float("-inf"))
+    windows: int = 0
+
+    def due(self, t: float) -> bool:
+        """Whether the packet is due at event time t (called once per window close)."""
+        if self.decimation is not None:
+            self.windows += 1
+            if self.windows >= self.decimation:
+                self.windows = 0
+                return True
+            return False
+        if t >= self.next_t:
+            self.next_t = t + float(self.period_s or 0.0) if self.next_t == float("-inf") \
+                else self.next_t + float(self.period_s or 0.0)
+            if self.next_t <= t:  # fell behind (e.g. after a gap): re-anchor
+                self.next_t = t + float(self.period_s or 0.0)
+            return True
+        return False
+
+
+def default_packets() -> dict[str, PacketSpec]:
+    """The contract's default packets: small 10 Hz, medium 1 Hz, large 1 Hz."""
+    return {"small": PacketSpec("small", list(SMALL), period_s=0.1),
+            "medium": PacketSpec("medium", list(MEDIUM), period_s=1.0),
+            "large": PacketSpec("large", list(LARGE), period_s=1.0)}
+
+
+def parse_packets(doc: dict[str, Any]) -> dict[str, PacketSpec]:
+    """Validate a packet configuration map {name: {fields, period_s | decimation}}; all-or-nothing."""
+    if not isinstance(doc, dict):
+        raise PacketError("packet configuration must be a map of packet name → settings")
+    out = default_packets()
+    for name, spec in doc.items():
+        if name not in out:
+            raise PacketError(f"unknown packet {name!r}; valid: small, medium, large")
+        if not isinstance(spec, dict):
+            raise PacketError(f"packet {name!r}: settings must be a map")
+        unknown = set(spec) - {"fields", "period_s", "decimation"}
+        if unknown:
+            raise PacketError(f"packet {name!r}: unknown setting(s) {sorted(unknown)}")
+        fields_ = spec.get("fields", out[name].fields)
+        if not isinstance(fields_, list) or not fields_:
+            raise PacketError(f"packet {name!r}: fields must be a non-empty list")
+        bad = [f for f in fields_ if f not in CATALOGUE]
+        if bad:
+            raise PacketError(f"packet {name!r}: unknown field(s) {bad}; catalogue: {sorted(CATALOGUE)}")
+        period, dec = spec.get("period_s"), spec.get("decimation")
+        if period is not None and dec is not None:
+            raise PacketError(f"packet {name!r}: give period_s or decimation, not both")
+        if period is not None and (not isinstance(period, (int, float)) or period <= 0):
+            raise PacketError(f"packet {name!r}: period_s must be a positive number")
+        if dec is not None and (not isinstance(dec, int) or isinstance(dec, bool) or dec < 1):
+            raise PacketError(f"packet {name!r}: decimation must be an integer ≥ 1")
+        if period is None and dec is None:
+            period, dec = out[name].period_s, out[name].decimation
+        out[name] = PacketSpec(name, list(fields_), period_s=period, decimation=dec)
+    return out
+
+
+def load_packets(path: str | Path) -> dict[str, PacketSpec]:
+    """Load a TOML packet file ([packets.small], ...) with clear errors."""
+    try:
+        doc = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise PacketError(f"{path}: {exc}") from None
+    try:
+        return parse_packets(doc.get("packets", doc))
+    except PacketError as exc:
+        raise PacketError(f"{path}: {exc}") from None
+
+
+def build(spec: PacketSpec, source: Any) -> dict[str, Any]:
+    """Build one packet map (with "v": 1) from the source's current state."""
+    spec.seq += 1
+    msg: dict[str, Any] = {"v": 1}
+    for name in spec.fields:
+        msg[name] = spec.seq if name == "seq" else CATALOGUE[name][1](source)
+    return msg
