@@ -27,6 +27,7 @@ from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .rotation import quat_conj, quat_mul, rotvec_to_quat
 from .state import PARAM_GROUPS, StateLayout
+from .updates import gated_update
 
 
 class Engine(EngineState):
@@ -155,25 +156,24 @@ class Engine(EngineState):
         self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
                                           self.q_params * self.acc_f[0], self.ws.a))
         if self.acc_i[1] > 0 and not self.excluded.any():
-            r = self.acc_f[1] + self.si.quant_var
-            for row in range(self.N.shape[1]):
-                self.h[:] = 0.0
-                self.h[3:] = self.H_par[row]
-                self._scalar_update(float(self.z_par[row]), r, self.si.gate_parity_nis, "parity")
+            nr = self.N.shape[1]
+            self.Hbuf[:nr, :] = 0.0
+            self.Hbuf[:nr, 3:] = self.H_par
+            rd = np.full(nr, self.acc_f[1] + self.si.quant_var)
+            self._vector_update("parity", self.Hbuf[:nr], self.z_par, rd, self.si.gate_parity_nis)
         self._reset_window()
 
-    def _scalar_update(self, z: float, r: float, gate: float, kind: str) -> bool:
-        """One gated scalar Bierman update with row self.h; accumulates the correction in dx."""
-        innov = z - float(self.h @ self.dx)
-        alpha = ud.innovation_variance(self.U, self.d, self.h, r, self.ws.f)
-        nis = innov * innov / alpha if alpha > 0 else math.inf
-        self.diag_last[kind] = (innov, math.sqrt(max(alpha, 0.0)), nis)
-        if self.si.edit_enabled and nis > gate:
+    def _vector_update(self, kind: str, H, z, rdiag, gate: float) -> bool:
+        """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics."""
+        m = H.shape[0]
+        status, nis, edited = gated_update(
+            self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, self.Fbuf[:m],
+            self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f, self.ws.v, self.ws.k)
+        self._check(status)
+        self.diag_last[kind] = (self.innov[:m].copy(), self.sig[:m].copy(), float(nis))
+        if edited:
             self.counters[f"{kind}_edited"] += 1
             return False
-        status, alpha = ud.bierman_update(self.U, self.d, self.h, r, self.ws.k, self.ws.f, self.ws.v)
-        self._check(status)
-        self.dx += self.ws.k * innov
         self.counters[f"{kind}_used"] += 1
         self.nis_sum[kind] += nis
         return True
@@ -246,34 +246,15 @@ class Engine(EngineState):
         phi = self.xp[self.layout["phi2"]]
         tracker_residual(np.asarray(q_meas, float), q_epoch, R_nom, phi, use_phi, self.r3,
                          self.H_att, self.H_phi)
-        sig = self._tracker_sigma(n_stars)
-        rows = np.zeros((3, self.ns))
-        rows[:, :3] = self.H_att
-        rows[:, self.layout["phi2"]] = self.H_phi
-        innov = self.r3 - rows @ self.dx
-        S = np.empty((3, 3))
-        F = np.empty((3, self.ns))
-        for a in range(3):
-            F[a] = self.U.T @ rows[a]
-        S[:, :] = (F * self.d) @ F.T + np.diag(sig**2)
-        nis = float(innov @ np.linalg.solve(S, innov))
-        kind = f"st{j}"
-        self.diag_last[kind] = (innov.copy(), np.sqrt(np.diag(S)), nis)
-        if self.si.edit_enabled and nis > self.si.gate_st_nis:
-            self.counters[f"{kind}_edited"] += 1
-            self.flags |= Flag.ST1_EDITED if j == 1 else Flag.ST2_EDITED
-            return False
-        self.flags &= ~int(Flag.ST1_EDITED if j == 1 else Flag.ST2_EDITED)
-        for a in range(3):
-            self.h[:] = rows[a]
-            innov_a = float(self.r3[a] - self.h @ self.dx)
-            status, _alpha = ud.bierman_update(self.U, self.d, self.h, float(sig[a] ** 2),
-                                               self.ws.k, self.ws.f, self.ws.v)
-            self._check(status)
-            self.dx += self.ws.k * innov_a
-        self.counters[f"{kind}_used"] += 1
-        self.nis_sum[kind] += nis
-        return True
+        H = self.Hbuf[:3]
+        H[:, :] = 0.0
+        H[:, :3] = self.H_att
+        H[:, self.layout["phi2"]] = self.H_phi
+        used = self._vector_update(f"st{j}", H, self.r3, self._tracker_sigma(n_stars) ** 2,
+                                   self.si.gate_st_nis)
+        bit = Flag.ST1_EDITED if j == 1 else Flag.ST2_EDITED
+        self.flags = (self.flags & ~int(bit)) | (0 if used else int(bit))
+        return used
 
     # ---------------------------------------------------------------- health
     def _check(self, status: int) -> None:

@@ -1,0 +1,399 @@
+"""MCAP archives of RADICAL-RT telemetry (CONTRACT.md §4): writing, reading, truncated-file recovery.
+
+Topics are the Zenoh topics with a leading slash; message encoding msgpack (data = the Zenoh
+payload); jsonschema schemas ``radical.<topic>`` (replayer.schemas); log_time = publish_time =
+round(t_bus·1e9) ns; metadata ``radical.scenario``. A leaf I/O layer (stdlib, numpy, msgpack, mcap).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import math
+import numbers
+import os
+import struct
+import time
+import warnings
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import msgpack
+import numpy as np
+from mcap import records as mr
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
+from mcap.writer import CompressionType, IndexType, Writer
+
+from radical_rt.conventions import t_to_ns
+from replayer.schemas import SCHEMAS, schema_name
+
+log = logging.getLogger(__name__)
+
+INPUT_TOPICS = ("/siru", "/st1", "/st2", "/temp")
+OUTPUT_TOPICS = ("/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag")
+TRUTH_TOPICS = ("/truth/attitude", "/truth/params", "/truth/siru_time")
+SCENARIO_METADATA = "radical.scenario"
+
+_MAGIC = b"\x89MCAP0\r\n"
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE, "": CompressionType.NONE}
+
+
+class ArchiveError(Exception):
+    """An archive cannot be written or read; ``str(e)`` is one line naming the file and problem."""
+
+
+class TruncatedArchiveWarning(UserWarning):
+    """A truncated archive (no valid summary/footer) was read up to its tear."""
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _np_default(obj: Any) -> Any:  # msgpack fallback: numpy arrays/scalars -> lists/scalars
+    if isinstance(obj, np.ndarray | np.generic):
+        return obj.tolist()
+    raise TypeError(f"cannot msgpack-encode an object of type {type(obj).__name__}")
+
+
+class ArchiveWriter:
+    """Write one telemetry stream to an MCAP file (zstd chunks, all indexes, CRCs on).
+
+    ``chunk_size``: uncompressed bytes per chunk; ``flush_every_s``: wall time (s) between automatic
+    :meth:`flush` calls. ``scenario`` values are stored as strings, missing contract keys as ""
+    (``generator``: ``library``). Sequence numbers count from 0 per channel. Not thread-safe."""
+
+    def __init__(self, path: str | os.PathLike[str], *, scenario: dict[str, str] | None = None,
+                 chunk_size: int = 1 << 20, compression: str = "zstd",
+                 library: str = "radical-rt", flush_every_s: float | None = None) -> None:
+        self.path = os.fspath(path)
+        comp = _COMPRESSION.get(compression.lower())
+        if comp is None:
+            raise ArchiveError(f"{self.path}: unknown compression {compression!r} (zstd, lz4, none)")
+        try:
+            self._file = open(self.path, "wb")
+            self._w = Writer(self._file, chunk_size=chunk_size, compression=comp,
+                             index_types=IndexType.ALL, enable_crcs=True)
+            self._w.start(profile="", library=library)
+            if scenario is not None:
+                meta = {str(k): str(v) for k, v in scenario.items()}
+                for k in ("name", "vehicle", "seed", "generator"):
+                    meta.setdefault(k, library if k == "generator" else "")
+                self._w.add_metadata(SCENARIO_METADATA, meta)
+            self._file.flush()  # header (+ scenario) reach the file even if killed early
+        except (OSError, McapError) as e:  # e.g. a missing directory, lz4 not installed
+            if hasattr(self, "_file"):
+                self._file.close()
+            raise ArchiveError(f"{self.path}: cannot create archive: {_one_line(e)}") from None
+        self._packer = msgpack.Packer(use_bin_type=True, default=_np_default)
+        self._channels: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self._flush_every_s, self._last_flush = flush_every_s, time.monotonic()
+        self._closed, self.message_count = False, 0
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:  # lazy registration; unknown topics get a schemaless (id 0) channel
+            schema = SCHEMAS.get(topic)
+            sid = 0 if schema is None else self._w.register_schema(
+                schema_name(topic), "jsonschema", json.dumps(schema, sort_keys=True).encode())
+            cid = self._channels[topic] = self._w.register_channel(topic, "msgpack", sid)
+            self._seq[cid] = 0
+        return cid
+
+    def _msg_time(self, topic: str, msg: dict[str, Any]) -> float:
+        """Bus time (s): ``t_bus`` (last element for a batch), else ``t``, else last ``t_true``."""
+        key = next((k for k in ("t_bus", "t", "t_true") if k in msg), None)
+        with contextlib.suppress(TypeError, IndexError, ValueError):
+            v = msg[key] if key else None
+            return float(v) if isinstance(v, numbers.Real | str) else float(v[-1])  # type: ignore[index]
+        raise ArchiveError(f"{self.path}: {topic}: no t_bus given and no time (or non-empty list "
+                           "of times) in the message's 't_bus', 't' or 't_true'")
+
+    def write(self, topic: str, msg: dict[str, Any], t_bus: float | None = None) -> None:
+        """msgpack-encode ``msg`` (numpy values become lists/scalars) and append it at
+        log_time = publish_time = round(t_bus·1e9) ns; ``t_bus`` (s) defaults to the message's."""
+        t = self._msg_time(topic, msg) if t_bus is None else float(t_bus)
+        if not (math.isfinite(t) and 0.0 <= t < 1.8e10):
+            raise ArchiveError(f"{self.path}: {topic}: bus time {t!r} s is not a valid MCAP time")
+        self.write_raw(topic, self._packer.pack(msg), t_to_ns(t))
+
+    def write_raw(self, topic: str, data: bytes, log_time_ns: int,
+                  publish_time_ns: int | None = None) -> None:
+        """Append an encoded payload (msgpack bytes) at ``log_time_ns`` (ns)."""
+        if self._closed:
+            raise ArchiveError(f"{self.path}: write to {topic} after close")
+        pub = log_time_ns if publish_time_ns is None else publish_time_ns
+        if not (0 <= log_time_ns < 1 << 64 and 0 <= pub < 1 << 64):
+            raise ArchiveError(f"{self.path}: {topic}: time {log_time_ns}/{pub} ns not uint64")
+        cid = self._channel(topic)
+        seq = self._seq[cid]
+        self._seq[cid] = (seq + 1) & 0xFFFFFFFF  # MCAP sequence is uint32
+        self._w.add_message(cid, log_time=int(log_time_ns), data=data, publish_time=int(pub),
+                            sequence=seq)
+        self.message_count += 1
+        if (self._flush_every_s is not None
+                and time.monotonic() - self._last_flush >= self._flush_every_s):
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the chunk and flush the file (no fsync): a killed writer keeps all up to here."""
+        if not self._closed:
+            self._w.flush()
+            self._file.flush()
+        self._last_flush = time.monotonic()
+
+    def close(self) -> None:
+        """Write the summary and footer and close the file. Idempotent."""
+        if not self._closed:
+            self._closed = True
+            try:
+                self._w.finish()
+            finally:
+                self._file.close()
+
+    def __enter__(self) -> ArchiveWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _parse_record(raw: bytes) -> Any:  # one complete record: opcode, length, body
+    return next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
+
+
+class _RebuiltIndexReader(SeekingReader):
+    """A SeekingReader over a file without summary, using a summary rebuilt by scanning it."""
+
+    def __init__(self, f: Any, summary: Summary, validate_crcs: bool) -> None:
+        f.seek(0)
+        super().__init__(f, validate_crcs=validate_crcs)
+        self._rebuilt = summary
+
+    def get_summary(self) -> Summary:
+        return self._rebuilt
+
+    def iter_messages(self, *args: Any, **kw: Any) -> Any:  # no chunks: nothing (never stream)
+        return super().iter_messages(*args, **kw) if self._rebuilt.chunk_indexes else iter(())
+
+
+class ArchiveReader:
+    """Read an MCAP archive: metadata on open, then messages in log_time order.
+
+    A complete file is read through its summary and chunk index. For a truncated one (no valid
+    summary/footer: its writer was killed) the index is rebuilt from the records before the tear
+    (bounds and chunk CRCs checked: a torn chunk is dropped whole), ``truncated`` is set and a
+    :class:`TruncatedArchiveWarning` plus a log warning name the file and the messages recovered.
+    Times are log_time in ns, ranges ``[start_ns, end_ns)``; ``schemas``: topic -> jsonschema.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, validate_crcs: bool = False) -> None:
+        self.path = p = os.fspath(path)
+        self.truncated, self._validate_crcs = False, validate_crcs
+        self.topics: list[str] = []
+        self.start_ns: int | None = None
+        self.end_ns: int | None = None
+        self.scenario: dict[str, str] = {}
+        self.schemas: dict[str, dict[str, Any]] = {}
+        self.message_counts: dict[str, int] = {}
+        try:
+            self._f = open(p, "rb")
+        except OSError as e:
+            raise ArchiveError(f"{p}: cannot open: {e.strerror or e}") from None
+        try:
+            self._size = os.fstat(self._f.fileno()).st_size
+            if (magic := self._f.read(len(_MAGIC))) != _MAGIC:
+                what = "empty file" if self._size == 0 else f"bad magic bytes {magic!r}"
+                raise ArchiveError(f"{p}: not an MCAP archive ({what})")
+            self._load()
+        except Exception as e:
+            self._f.close()
+            if isinstance(e, ArchiveError):
+                raise
+            raise ArchiveError(f"{p}: unreadable MCAP archive: {_one_line(e)}") from e
+
+    def _load(self) -> None:
+        f, summary, footer_ok = self._f, None, False
+        f.seek(max(self._size - len(_MAGIC), 0))
+        if self._size >= 2 * len(_MAGIC) + 29 and f.read() == _MAGIC:  # 29: footer record
+            f.seek(0)
+            self._reader = SeekingReader(f, validate_crcs=self._validate_crcs)
+            try:
+                summary, footer_ok = self._reader.get_summary(), True
+            except Exception:  # torn or corrupt footer/summary: rebuild below
+                pass
+        if summary is None:
+            summary, torn = self._rebuild_summary()
+            self._reader = _RebuiltIndexReader(f, summary, self._validate_crcs)
+            torn = torn or (None if footer_ok else "no valid summary/footer after the data")
+            if torn is not None:
+                self.truncated, n = True, summary.statistics.message_count  # type: ignore[union-attr]
+                text = (f"{self.path}: truncated MCAP archive ({torn}); recovered {n} messages "
+                        f"from its first {self._good_bytes} of {self._size} bytes")
+                warnings.warn(text, TruncatedArchiveWarning, stacklevel=3)
+                log.warning("%s", text)
+        self._summary = summary
+        self._header = None
+        with contextlib.suppress(Exception):  # a torn header
+            self._header = self._reader.get_header()
+        self._metadata = list(self._reader.iter_metadata())
+        stats = summary.statistics
+        if stats is None:  # a foreign file without statistics: count
+            counts = Counter(ch.id for _s, ch, _m in self._reader.iter_messages())
+        else:
+            counts = Counter(stats.channel_message_counts)
+            if stats.message_count:
+                self.start_ns, self.end_ns = stats.message_start_time, stats.message_end_time
+        for cid, ch in sorted(summary.channels.items()):
+            if ch.topic not in self.message_counts:
+                self.topics.append(ch.topic)
+            self.message_counts[ch.topic] = self.message_counts.get(ch.topic, 0) + counts[cid]
+            sc = summary.schemas.get(ch.schema_id)
+            if sc is not None and sc.encoding == "jsonschema" and ch.topic not in self.schemas:
+                try:
+                    self.schemas[ch.topic] = json.loads(sc.data)
+                except ValueError:
+                    log.warning("%s: schema %s of %s is not JSON", self.path, sc.name, ch.topic)
+        for md in self._metadata:
+            if md.name == SCENARIO_METADATA:
+                self.scenario.update(md.metadata)
+
+    def _rebuild_summary(self) -> tuple[Summary, str | None]:
+        """Stream the records up to the end of the data section or the tear; returns the summary
+        rebuilt from what is readable and why reading stopped early (None: data complete)."""
+        f, size, pos, s = self._f, self._size, len(_MAGIC), Summary()
+        counts: Counter[int] = Counter()
+        torn: str | None = "no summary/footer"
+        while pos + 9 <= size:
+            f.seek(pos)
+            head = f.read(9)
+            opcode, length = struct.unpack("<BQ", head)
+            end = pos + 9 + length
+            if end > size:
+                torn = f"record at byte {pos} torn at byte {size}"
+                break
+            if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                pos, torn = end, None
+                break
+            if opcode in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA):
+                try:
+                    rec = _parse_record(head + f.read(length))
+                    inner = breakup_chunk(rec, validate_crc=True) if isinstance(rec, mr.Chunk) else [rec]
+                except Exception as e:  # any parse/CRC failure marks the tear
+                    torn = f"unreadable record at byte {pos}: {_one_line(e)}"
+                    break
+                times, cids = [], {}
+                for r in inner:
+                    if isinstance(r, mr.Message) and r.channel_id in s.channels:
+                        counts[r.channel_id] += 1
+                        times.append(r.log_time)
+                        cids[r.channel_id] = 0
+                    elif isinstance(r, mr.Schema | mr.Channel):
+                        getattr(s, "schemas" if isinstance(r, mr.Schema) else "channels")[r.id] = r
+                    elif isinstance(r, mr.Metadata):
+                        s.metadata_indexes.append(mr.MetadataIndex(pos, end - pos, r.name))
+                if times and isinstance(rec, mr.Chunk):
+                    s.chunk_indexes.append(mr.ChunkIndex(
+                        chunk_length=end - pos, chunk_start_offset=pos, compression=rec.compression,
+                        compressed_size=len(rec.data), message_end_time=max(times),
+                        message_index_length=0, message_index_offsets=cids,
+                        message_start_time=min(times), uncompressed_size=rec.uncompressed_size))
+            pos = end
+        if torn is not None and pos + 9 > size > pos:
+            torn = f"torn record header at byte {pos}"
+        self._good_bytes, ci = pos, s.chunk_indexes
+        s.statistics = mr.Statistics(0, len(s.channels), counts, len(ci), sum(counts.values()),
+                                     max((c.message_end_time for c in ci), default=0),
+                                     min((c.message_start_time for c in ci), default=0),
+                                     len(s.metadata_indexes), len(s.schemas))
+        return s, torn
+
+    def require_inputs(self) -> None:
+        """Raise ArchiveError unless there are ``/siru`` and ``/st1`` or ``/st2`` messages."""
+        if not self.message_counts.get("/siru"):
+            raise ArchiveError(f"{self.path}: missing required channel /siru")
+        if not (self.message_counts.get("/st1") or self.message_counts.get("/st2")):
+            raise ArchiveError(f"{self.path}: no tracker channel (/st1 or /st2)")
+
+    def iter_raw(self, topics: Iterable[str] | str | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[tuple[str, int, bytes]]:
+        """``(topic, log_time_ns, data)`` in log_time order (ties in file order), [start, end)."""
+        tset = None if topics is None else ({topics} if isinstance(topics, str) else set(topics))
+        if start_ns is not None and end_ns is not None and end_ns <= start_ns:
+            return
+        try:
+            for _schema, ch, m in self._reader.iter_messages(
+                    topics=tset, starting_at=start_ns, ending_before=end_ns):
+                yield ch.topic, m.log_time, m.data
+        except Exception as e:
+            raise ArchiveError(f"{self.path}: cannot read messages: {_one_line(e)}") from e
+
+    def iter_messages(self, topics: Iterable[str] | str | None = None,
+                      start_ns: int | None = None,
+                      end_ns: int | None = None) -> Iterator[tuple[str, int, dict[str, Any]]]:
+        """:meth:`iter_raw`, decoded; a bad payload raises (use iter_raw to skip bad ones)."""
+        for topic, t, data in self.iter_raw(topics, start_ns, end_ns):
+            try:
+                msg = msgpack.unpackb(data, raw=False, strict_map_key=False)
+            except Exception as e:
+                raise ArchiveError(f"{self.path}: {topic} at log_time {t} ns: undecodable "
+                                   f"msgpack payload: {_one_line(e)}") from None
+            yield topic, t, msg
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> ArchiveReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_scenario(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The ``radical.scenario`` metadata of an archive ({} if absent)."""
+    with ArchiveReader(path) as r:
+        return dict(r.scenario)
+
+
+def recover(path_in: str | os.PathLike[str], path_out: str | os.PathLike[str]) -> int:
+    """Rewrite all that is readable in ``path_in`` into a complete archive ``path_out`` (may be
+    the same path), in log_time order, keeping header, metadata, schemas, channels, times and
+    sequence numbers. Returns the number of messages written."""
+    out = os.fspath(path_out)
+    tmp, n = out + ".recover-tmp", 0
+    try:
+        with ArchiveReader(path_in, validate_crcs=True) as r, open(tmp, "wb") as f:
+            w = Writer(f, compression=CompressionType.ZSTD, index_types=IndexType.ALL,
+                       enable_crcs=True)
+            h = r._header
+            w.start(profile=h.profile if h else "", library=h.library if h else "radical-rt")
+            for md in r._metadata:
+                w.add_metadata(md.name, dict(md.metadata))
+            sids = {i: w.register_schema(s.name, s.encoding, s.data)
+                    for i, s in sorted(r._summary.schemas.items())}
+            cids = {i: w.register_channel(c.topic, c.message_encoding, sids.get(c.schema_id, 0),
+                                          dict(c.metadata))
+                    for i, c in sorted(r._summary.channels.items())}
+            for _s, ch, m in r._reader.iter_messages():
+                w.add_message(cids[ch.id], m.log_time, m.data, m.publish_time, m.sequence)
+                n += 1
+            w.finish()
+        os.replace(tmp, out)
+    except OSError as e:
+        raise ArchiveError(f"{out}: cannot write recovered archive: {e.strerror or e}") from None
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    log.info("%s: recovered %d messages into %s", r.path, n, out)
+    return n
