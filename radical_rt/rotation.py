@@ -155,7 +155,7 @@ def quat_to_rotvec(q):
     sn = math.sqrt(x * x + y * y + z * z)
     a = 2.0 * math.atan2(sn, w)
     if sn < 1e-7:
-        k = 2.0 / w * (1.0 + sn * sn / (3.0 * w * w))  # a/sn to third order
+        k = 2.0 / w * (1.0 - sn * sn / (3.0 * w * w))  # a/sn = 2 atan(sn/w)/sn to third order
     else:
         k = a / sn
     out[0] = k * x

@@ -1,0 +1,427 @@
+"""UD kernels against dense references (notes/rimu.md §11.10 (i)-(ii); DESIGN §5).
+
+Random problems: hypothesis draws the size and a seed (derandomized, so every run is the same and
+a failure prints its seed); numpy builds an SPD covariance with eigenvalues spread over 1e4 and
+state scales spread over 1e6 (mixed units). Errors are measured scale-free, relative to
+sqrt(P_ii P_jj), so a 1e-9 tolerance means the same thing for every state.
+"""
+
+from __future__ import annotations
+
+import mpmath
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radical_rt import ud
+from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK
+
+TOL = 1e-9
+SETTINGS = settings(derandomize=True, deadline=None, max_examples=60)
+sizes = st.integers(1, 40)
+seeds = st.integers(0, 2**32 - 1)
+
+
+def random_spd(rng, n, cond_exp=4.0, scale_exp=3.0):
+    """SPD (n, n): eigenvalues 10^±cond_exp/2, then state scales 10^±scale_exp."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    A = (Q * 10.0 ** rng.uniform(-cond_exp / 2, cond_exp / 2, n)) @ Q.T
+    s = 10.0 ** rng.uniform(-scale_exp, scale_exp, n)
+    A = s[:, None] * A * s[None, :]
+    return 0.5 * (A + A.T)
+
+
+def factors(P):
+    n = P.shape[0]
+    U, d = np.zeros((n, n)), np.zeros(n)
+    assert ud.factor_ud(P, U, d) == OK
+    return U, d
+
+
+def cov(U, d):
+    P = np.empty_like(U)
+    ud.ud_to_cov(U, d, P)
+    return P
+
+
+def nerr(P, P_ref):
+    """max |P − P_ref|_ij / sqrt(P_ref_ii P_ref_jj) (correlation-scale error)."""
+    s = np.sqrt(np.diag(P_ref))
+    return float(np.max(np.abs(P - P_ref) / np.outer(s, s)))
+
+
+def assert_valid(U, d):
+    """U unit upper triangular exactly, d positive and finite."""
+    assert np.array_equal(np.diag(U), np.ones(len(d)))
+    assert np.array_equal(np.tril(U, -1), np.zeros_like(U))
+    assert np.all(np.isfinite(U)) and np.all(np.isfinite(d)) and np.all(d > 0)
+
+
+def problem(n, seed):
+    rng = np.random.default_rng(seed)
+    P = random_spd(rng, n)
+    U, d = factors(P)
+    return rng, P, U, d
+
+
+# --------------------------------------------------------------------------- factor / readout
+@SETTINGS
+@given(n=sizes, seed=seeds)
+def test_factor_roundtrip_and_variances(n, seed):
+    _, P, U, d = problem(n, seed)
+    assert_valid(U, d)
+    assert nerr(cov(U, d), P) < TOL
+    var = np.empty(n)
+    ud.variances(U, d, var)
+    np.testing.assert_allclose(var, np.diag(P), rtol=TOL)
+    np.testing.assert_allclose(var, np.diag(cov(U, d)), rtol=1e-14)
+
+
+def test_factor_diagonal_is_exact_and_bad_input():
+    P = np.diag([1e-6, 2.0, 3e8])
+    U, d = factors(P)
+    assert np.array_equal(U, np.eye(3)) and np.array_equal(d, np.diag(P))
+    U, d = np.zeros((3, 3)), np.zeros(3)
+    assert ud.factor_ud(np.diag([1.0, -1.0, 1.0]), U, d) == ERR_NOT_POSITIVE
+    assert ud.factor_ud(np.array([[1.0, 2.0], [2.0, 1.0]]), U[:2, :2].copy(), d[:2].copy()) \
+        == ERR_NOT_POSITIVE
+    bad = np.eye(3)
+    bad[0, 2] = bad[2, 0] = np.nan
+    assert ud.factor_ud(bad, U, d) == ERR_NOT_POSITIVE
+    assert ud.factor_ud(np.eye(3), np.zeros((3, 2)), d) == ERR_SHAPE
+    P_bad = np.full((3, 3), 7.0)
+    ud.ud_to_cov(np.eye(3), np.ones(2), P_bad)
+    assert np.all(np.isnan(P_bad))
+
+
+# --------------------------------------------------------------------------- Bierman
+def joseph(P, h, r):
+    alpha = h @ P @ h + r
+    K = P @ h / alpha
+    A = np.eye(len(h)) - np.outer(K, h)
+    return A @ P @ A.T + r * np.outer(K, K), K, alpha
+
+
+def assert_gain(K, K_ref, P, alpha):
+    """|ΔK_i| relative to sqrt(P_ii / α) (the largest |K_i| can be)."""
+    assert np.max(np.abs(K - K_ref) * np.sqrt(alpha / np.diag(P))) < TOL
+
+
+@SETTINGS
+@given(n=sizes, seed=seeds, sparse=st.booleans())
+def test_bierman_matches_joseph(n, seed, sparse):
+    rng, P, U, d = problem(n, seed)
+    h = rng.standard_normal(n) / np.sqrt(np.diag(P))
+    if sparse:  # star-tracker-like row: a few non-zeros only
+        h[rng.random(n) < 0.7] = 0.0
+        h[rng.integers(n)] = 1.0 / np.sqrt(P[0, 0])
+    r = float((h @ P @ h) * 10.0 ** rng.uniform(-3, 1))
+    P_ref, K_ref, alpha_ref = joseph(P, h, r)
+    assert ud.innovation_variance(U, d, h, r, np.empty(n)) == pytest.approx(alpha_ref, rel=TOL)
+    k, f, v = np.empty(n), np.empty(n), np.empty(n)
+    status, alpha = ud.bierman_update(U, d, h, r, k, f, v)
+    assert status == OK
+    assert alpha == pytest.approx(alpha_ref, rel=TOL)
+    assert_gain(k, K_ref, P, alpha_ref)
+    assert_valid(U, d)
+    assert nerr(cov(U, d), P_ref) < TOL
+
+
+def test_bierman_rejects_bad_input_without_change():
+    rng, P, U, d = problem(6, 1)
+    U0, d0, ws = U.copy(), d.copy(), ud.UDWorkspace(6)
+    h = rng.standard_normal(6)
+    for args, code in (((h, 0.0), ERR_NOT_POSITIVE), ((h, -1.0), ERR_NOT_POSITIVE),
+                       ((h, np.nan), ERR_NONFINITE), ((np.full(6, np.inf), 1.0), ERR_NONFINITE),
+                       ((h[:5].copy(), 1.0), ERR_SHAPE)):
+        status, _ = ud.bierman_update(U, d, args[0], args[1], ws.k, ws.f, ws.v)
+        assert status == code
+        assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+def test_bierman_zero_row_is_identity():
+    _, _, U, d = problem(5, 2)
+    U0, d0, ws = U.copy(), d.copy(), ud.UDWorkspace(5)
+    status, alpha = ud.bierman_update(U, d, np.zeros(5), 0.25, ws.k, ws.f, ws.v)
+    assert status == OK and alpha == 0.25
+    assert np.array_equal(U, U0) and np.array_equal(d, d0) and not np.any(ws.k)
+
+
+# --------------------------------------------------------------------------- MWGS
+@SETTINGS
+@given(n=sizes, seed=seeds, r_frac=st.floats(0.0, 1.0))
+def test_mwgs_matches_dense(n, seed, r_frac):
+    rng, P, U, d = problem(n, seed)
+    r = int(round(r_frac * n))
+    s = np.sqrt(np.diag(P))
+    Phi = s[:, None] * (np.eye(n) + 0.3 * rng.standard_normal((n, n))) / s[None, :]
+    G = s[:, None] * rng.standard_normal((n, r))
+    q = rng.uniform(0.0, 1.0, r) * (rng.random(r) < 0.8)
+    P_ref = Phi @ P @ Phi.T + (G * q) @ G.T
+    ws = ud.UDWorkspace(n, m_att=1)  # r_max = n ≥ r: larger work arrays than needed are accepted
+    assert ud.mwgs_time_update(U, d, Phi, G, q, ws.Y, ws.Dw, ws.c) == OK
+    assert_valid(U, d)
+    assert nerr(cov(U, d), P_ref) < TOL
+
+
+def test_mwgs_singular_and_bad_input_change_nothing():
+    _, _, U, d = problem(5, 3)
+    U0, d0, ws = U.copy(), d.copy(), ud.UDWorkspace(5)
+    Phi = np.eye(5)
+    Phi[2, :] = 0.0  # zero row, no noise: the result is singular
+    G, q = np.zeros((5, 1)), np.zeros(1)
+    assert ud.mwgs_time_update(U, d, Phi, G, q, ws.Y, ws.Dw, ws.c) == ERR_NOT_POSITIVE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+    assert ud.mwgs_time_update(U, d, np.eye(5), G, -np.ones(1), ws.Y, ws.Dw, ws.c) \
+        == ERR_NOT_POSITIVE
+    assert ud.mwgs_time_update(U, d, np.full((5, 5), np.nan), G, q, ws.Y, ws.Dw, ws.c) \
+        == ERR_NONFINITE
+    assert ud.mwgs_time_update(U, d, np.eye(5), G, q, ws.Y[:, :5], ws.Dw, ws.c) == ERR_SHAPE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+    G[2, 0], q[0] = 1.0, 0.5  # noise on the zeroed state makes it regular again
+    assert ud.mwgs_time_update(U, d, Phi, G, q, ws.Y, ws.Dw, ws.c) == OK
+    assert_valid(U, d)
+
+
+# --------------------------------------------------------------------------- structured
+@SETTINGS
+@given(m=st.integers(1, 3), n=st.integers(1, 40), seed=seeds, q_rank=st.integers(0, 3))
+def test_structured_matches_dense(m, n, seed, q_rank):
+    n = max(n, m + 1)
+    rng, P, U, d = problem(n, seed)
+    s = np.sqrt(np.diag(P))
+    Phi = np.eye(n)
+    Phi[:m, :m] += 0.3 * rng.standard_normal((m, m))
+    Phi[:m, m:] = rng.standard_normal((m, n - m))
+    Phi = s[:, None] * Phi / s[None, :]
+    A = s[:m, None] * rng.standard_normal((m, min(q_rank, m)))
+    Q = np.zeros((n, n))
+    Q[:m, :m] = A @ A.T  # PSD, possibly singular
+    P_ref = Phi @ P @ Phi.T + Q
+    U22, d2 = U[m:, m:].copy(), d[m:].copy()
+    work = ud.structured_work(n, m)
+    # non-contiguous views are accepted as they are (numba compiles an 'A'-layout version)
+    assert ud.structured_time_update(U, d, m, Phi[:m, :m], Phi[:m, m:], Q[:m, :m], work) == OK
+    assert_valid(U, d)
+    assert np.array_equal(U[m:, m:], U22) and np.array_equal(d[m:], d2)
+    assert nerr(cov(U, d), P_ref) < TOL
+
+
+def test_structured_whole_state_and_errors():
+    rng, P, U, d = problem(4, 4)
+    Phi = np.eye(4) + 0.2 * rng.standard_normal((4, 4))
+    work = ud.structured_work(4, 4)
+    assert ud.structured_time_update(U, d, 4, Phi, np.zeros((4, 0)), np.eye(4), work) == OK
+    assert nerr(cov(U, d), Phi @ P @ Phi.T + np.eye(4)) < TOL
+    U0, d0 = U.copy(), d.copy()
+    Z = np.zeros((3, 3))
+    assert ud.structured_time_update(U, d, 3, Z, np.zeros((3, 1)), Z, work) == ERR_NOT_POSITIVE
+    assert ud.structured_time_update(U, d, 3, np.eye(3), np.zeros((3, 2)), Z, work) == ERR_SHAPE
+    assert ud.structured_time_update(U, d, 3, np.eye(3), np.zeros((3, 1)), Z, work[:, :5]) \
+        == ERR_SHAPE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+# --------------------------------------------------------------------------- Agee-Turner
+@SETTINGS
+@given(n=sizes, seed=seeds)
+def test_agee_turner_matches_dense(n, seed):
+    rng, P, U, d = problem(n, seed)
+    a = np.sqrt(np.diag(P)) * rng.standard_normal(n) * (rng.random(n) < 0.8)
+    a0 = a.copy()
+    c = float(10.0 ** rng.uniform(-3, 2))
+    assert ud.agee_turner(U, d, c, a, np.empty(n)) == OK
+    assert np.array_equal(a, a0)
+    assert_valid(U, d)
+    assert nerr(cov(U, d), P + c * np.outer(a, a)) < TOL
+
+
+def test_agee_turner_rejects_downdate():
+    _, _, U, d = problem(5, 5)
+    U0, d0 = U.copy(), d.copy()
+    assert ud.agee_turner(U, d, -1.0, np.ones(5), np.empty(5)) == ERR_NOT_POSITIVE
+    assert ud.agee_turner(U, d, np.nan, np.ones(5), np.empty(5)) == ERR_NONFINITE
+    assert ud.agee_turner(U, d, 0.0, np.ones(5), np.empty(5)) == OK
+    assert ud.agee_turner(U, d, 1.0, np.ones(4), np.empty(5)) == ERR_SHAPE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+@SETTINGS
+@given(n=sizes, seed=seeds)
+def test_add_diagonal_noise_matches_dense(n, seed):
+    rng, P, U, d = problem(n, seed)
+    k = int(rng.integers(1, n + 1))
+    idx = rng.integers(0, n, size=k)  # repeats allowed
+    c = np.diag(P)[idx] * rng.uniform(0.0, 2.0, k) * (rng.random(k) < 0.9)
+    P_ref = P.copy()
+    for i, ci in zip(idx, c, strict=True):
+        P_ref[i, i] += ci
+    top = int(idx.max())
+    U_right, d_right = U[:, top + 1:].copy(), d[top + 1:].copy()
+    assert ud.add_diagonal_noise(U, d, idx, c, np.empty(n)) == OK
+    assert_valid(U, d)
+    assert np.array_equal(U[:, top + 1:], U_right) and np.array_equal(d[top + 1:], d_right)
+    assert nerr(cov(U, d), P_ref) < TOL
+
+
+def test_add_diagonal_noise_validates_everything_first():
+    _, _, U, d = problem(5, 6)
+    U0, d0, a = U.copy(), d.copy(), np.empty(5)
+    assert ud.add_diagonal_noise(U, d, np.array([0, 5]), np.ones(2), a) == ERR_SHAPE
+    assert ud.add_diagonal_noise(U, d, np.array([0, 1]), np.array([1.0, -1.0]), a) \
+        == ERR_NOT_POSITIVE
+    assert ud.add_diagonal_noise(U, d, np.array([0, 1]), np.array([1.0, np.inf]), a) \
+        == ERR_NONFINITE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+# --------------------------------------------------------------------------- reset / scale
+@SETTINGS
+@given(m=st.integers(1, 3), n=st.integers(1, 40), seed=seeds)
+def test_reset_leading_block(m, n, seed):
+    n = max(n, m + 1)
+    rng, P, U, d = problem(n, seed)
+    P0 = random_spd(rng, m)
+    U22, d2, P22 = U[m:, m:].copy(), d[m:].copy(), cov(U, d)[m:, m:]
+    assert ud.reset_leading_block(U, d, m, P0, ud.structured_work(n, m)) == OK
+    assert_valid(U, d)
+    assert np.array_equal(U[m:, m:], U22) and np.array_equal(d[m:], d2)
+    P_new = cov(U, d)
+    assert np.array_equal(P_new[m:, m:], P22)
+    assert not np.any(P_new[:m, m:]) and not np.any(U[:m, m:])
+    assert nerr(P_new[:m, :m], P0) < 1e-12
+
+
+def test_reset_rejects_non_spd_without_change():
+    _, _, U, d = problem(6, 7)
+    U0, d0 = U.copy(), d.copy()
+    bad = np.array([[1.0, 2.0], [2.0, 1.0]])
+    assert ud.reset_leading_block(U, d, 2, bad, ud.structured_work(6, 2)) == ERR_NOT_POSITIVE
+    assert ud.reset_leading_block(U, d, 3, np.eye(2), ud.structured_work(6, 3)) == ERR_SHAPE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+@SETTINGS
+@given(n=sizes, seed=seeds)
+def test_scale_states(n, seed):
+    rng, P, U, d = problem(n, seed)
+    s = 10.0 ** rng.uniform(-2, 2, n)
+    assert ud.scale_states(U, d, s) == OK
+    assert_valid(U, d)
+    assert nerr(cov(U, d), s[:, None] * P * s[None, :]) < TOL
+    U0, d0 = U.copy(), d.copy()
+    s[0] = 0.0
+    assert ud.scale_states(U, d, s) == ERR_NOT_POSITIVE
+    assert np.array_equal(U, U0) and np.array_equal(d, d0)
+
+
+# --------------------------------------------------------------------------- decorrelation
+@SETTINGS
+@given(n=sizes, m=st.integers(1, 6), seed=seeds)
+def test_decorrelate_then_scalar_updates_equal_vector_update(n, m, seed):
+    rng, P, U, d = problem(n, seed)
+    H = rng.standard_normal((m, n)) / np.sqrt(np.diag(P))
+    R = random_spd(rng, m, cond_exp=2.0, scale_exp=0.5)
+    z = rng.standard_normal(m)
+    H_w, z_w, L = np.empty((m, n)), np.empty(m), np.empty((m, m))
+    assert ud.decorrelate(H, z, R, H_w, z_w, L) == OK
+    L_ref = np.linalg.cholesky(R)
+    np.testing.assert_allclose(L_w := np.tril(L), L_ref, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(L_w @ H_w, H, rtol=1e-10, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(L_w @ z_w, z, rtol=1e-10, atol=1e-10 * np.abs(z).max())
+    H2, z2 = H.copy(), z.copy()  # outputs may alias the inputs
+    assert ud.decorrelate(H2, z2, R, H2, z2, L) == OK
+    assert np.array_equal(H2, H_w) and np.array_equal(z2, z_w)
+    # m scalar updates with r = 1 equal the dense vector update (Joseph form)
+    x = np.zeros(n)
+    ws = ud.UDWorkspace(n, m_att=1)
+    for i in range(m):
+        status, _ = ud.bierman_update(U, d, H_w[i], 1.0, ws.k, ws.f, ws.v)
+        assert status == OK
+        x += ws.k * (z_w[i] - H_w[i] @ x)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    A = np.eye(n) - K @ H
+    P_ref = A @ P @ A.T + K @ R @ K.T
+    assert nerr(cov(U, d), P_ref) < 1e-8
+    assert np.max(np.abs(x - K @ z) / np.sqrt(np.diag(P))) < 1e-8
+
+
+def test_decorrelate_errors():
+    H, z, out = np.ones((2, 3)), np.ones(2), (np.empty((2, 3)), np.empty(2), np.empty((2, 2)))
+    assert ud.decorrelate(H, z, np.array([[1.0, 2.0], [2.0, 1.0]]), *out) == ERR_NOT_POSITIVE
+    assert ud.decorrelate(H, z, np.eye(3), *out) == ERR_SHAPE
+    assert ud.decorrelate(H, np.array([1.0, np.nan]), np.eye(2), *out) == ERR_NONFINITE
+
+
+# --------------------------------------------------------------------------- workspace
+def test_workspace_shapes_fit_every_kernel():
+    n, m = 26, 3
+    ws = ud.UDWorkspace(n, m_att=m)
+    assert ws.r_max == n and ws.Y.shape == (n, 2 * n) and ws.struct.shape == (m, n + m)
+    rng, P, U, d = problem(n, 8)
+    G, q = rng.standard_normal((n, 4)), np.ones(4)
+    assert ud.mwgs_time_update(U, d, np.eye(n), G, q, ws.Y, ws.Dw, ws.c) == OK
+    assert ud.structured_time_update(U, d, m, np.eye(m), np.zeros((m, n - m)), np.eye(m),
+                                     ws.struct) == OK
+    assert ud.reset_leading_block(U, d, m, np.eye(m), ws.struct) == OK
+    assert ud.agee_turner(U, d, 1.0, np.ones(n), ws.a) == OK
+    H, R = rng.standard_normal((2, n)), np.eye(2)
+    assert ud.decorrelate(H, np.ones(2), R, ws.H_w, ws.z_w, ws.L) == OK
+    assert ud.bierman_update(U, d, ws.H_w[0], 1.0, ws.k, ws.f, ws.v)[0] == OK
+    ud.variances(U, d, ws.var)
+    assert np.all(ws.var > 0)
+    with pytest.raises(ValueError):
+        ud.UDWorkspace(3, m_att=4)
+
+
+# --------------------------------------------------------------------------- ill-conditioning
+def test_long_ill_conditioned_sequence_against_mpmath():
+    """3 states with a 1e8 prior, 3000 nearly redundant scalar rows with r = 1e-12.
+
+    The final covariance has condition number ≈ 1e14. The UD factors stay positive definite (by
+    construction) and agree with a 50-digit reference; the conventional float64 update
+    P ← (I − K h) P loses symmetry and positive definiteness and ends up far from it.
+    """
+    seed, n, n_up, r = 3, 6, 3000, 1e-12
+    rng = np.random.default_rng(seed)
+    mpmath.mp.dps = 50
+    P0 = np.diag([1e8, 1e8, 1e8, 1.0, 1.0, 1.0])
+    base = rng.standard_normal((3, n))
+    rows = base[np.arange(n_up) % 3] + 1e-7 * rng.standard_normal((n_up, n))
+    U, d = factors(P0)
+    ws = ud.UDWorkspace(n, m_att=1)
+    P_conv = P0.copy()
+    P_mp = mpmath.matrix(P0.tolist())
+    r_mp = mpmath.mpf(r)
+    worst_gain = worst_gain_scaled = 0.0
+    for k in range(n_up):
+        h = rows[k]
+        status, _ = ud.bierman_update(U, d, h, r, ws.k, ws.f, ws.v)
+        assert status == OK, f"step {k}: status {status}"
+        Ph = P_conv @ h
+        P_conv = P_conv - np.outer(Ph / (h @ Ph + r), h) @ P_conv  # conventional short form
+        h_mp = mpmath.matrix(h.tolist())
+        Ph_mp = P_mp * h_mp
+        alpha_mp = (h_mp.T * Ph_mp)[0] + r_mp
+        K_mp = Ph_mp / alpha_mp
+        K_ref = np.array([float(v) for v in K_mp])
+        dK = np.abs(ws.k - K_ref)
+        worst_gain = max(worst_gain, float(np.max(dK) / np.max(np.abs(K_ref))))
+        sd = np.array([float(mpmath.sqrt(P_mp[i, i] / alpha_mp)) for i in range(n)])
+        worst_gain_scaled = max(worst_gain_scaled, float(np.max(dK / sd)))
+        P_mp = P_mp - K_mp * Ph_mp.T
+    P_ref = np.array([[float(P_mp[i, j]) for j in range(n)] for i in range(n)])
+    eig_ref = np.linalg.eigvalsh(P_ref)
+    assert eig_ref[-1] / eig_ref[0] > 1e10  # genuinely ill-conditioned
+    assert_valid(U, d)
+    P_ud = cov(U, d)
+    assert nerr(P_ud, P_ref) < 1e-8, nerr(P_ud, P_ref)
+    # K = P h/α is itself ill-conditioned here: float64 K from the exactly rounded P is off by
+    # ~1e-3 relative at worst, the UD gain by ~1e-7 (and ~1e-9 on the scale of sqrt(P_ii/α)).
+    assert worst_gain < 1e-6 and worst_gain_scaled < 1e-8, (worst_gain, worst_gain_scaled)
+    # the conventional update has visibly degraded
+    asym = np.max(np.abs(P_conv - P_conv.T)) / np.max(np.abs(P_conv))
+    not_pd = np.linalg.eigvalsh(0.5 * (P_conv + P_conv.T))[0] <= 0 or np.any(np.diag(P_conv) <= 0)
+    assert asym > 1e-6 and not_pd and nerr(P_conv, P_ref) > 1.0
