@@ -35,12 +35,27 @@ def build_parser() -> argparse.ArgumentParser:
         except ModuleNotFoundError as exc:
             if exc.name and module.startswith(exc.name):
                 continue  # subcommand not built in this version
-            raise
+            _broken(sub, name, help_text, exc)
+            continue
+        except ImportError as exc:  # one broken subcommand must not take the others down
+            _broken(sub, name, help_text, exc)
+            continue
         p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def _broken(sub, name: str, help_text: str, exc: Exception) -> None:
+    """Register a subcommand whose module failed to import: it reports the error when run."""
+    p = sub.add_parser(name, help=f"{help_text} (unavailable: {exc})")
+
+    def run(_args: argparse.Namespace) -> int:
+        print(f"radical {name}: unavailable: {exc}", file=sys.stderr)
+        return 2
+
+    p.set_defaults(_run=run)
 
 
 def main(argv: list[str] | None = None) -> int:
