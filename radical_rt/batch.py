@@ -87,7 +87,9 @@ def _write(writer: ArchiveWriter | None, outputs: list[tuple[str, dict]]) -> Non
     if writer is None:
         return
     for topic, msg in outputs:
-        writer.write("/" + topic, msg, t_bus=msg.get("t"))
+        # An estimate time before bus time 0 (a tracker epoch t_bus − latency near the start of the
+        # bus clock) cannot be an MCAP time; it is logged at 0 and keeps its own "t".
+        writer.write("/" + topic, msg, t_bus=max(float(msg.get("t", 0.0)), 0.0))
 
 
 def _truth_paper_units(msg: dict) -> dict[str, list[float]]:

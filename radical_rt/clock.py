@@ -1,0 +1,327 @@
+"""Online SIRU clock reconstruction and repeat/miss repair (CONTRACT §1.5, notes §13).
+
+The SIRU samples on its own oscillator; the bus reads the latest completed sample at its own
+100 Hz ticks and tags it with the read's bus time, so the tag is late by a 0–10 ms sawtooth and
+reads near each sawtooth wrap repeat or skip samples. :class:`SiruClock` turns the stream of
+reads into the stream of distinct samples the filter needs: repeats dropped, misses bridged (or a
+gap declared), each sample given its reconstructed true time ``t`` on the bus time line and its
+true interval ``dt``.
+
+Time reconstruction (``mode="reconstruct"``) is a set-membership estimate of the line
+``t_k = a + b k`` over the unwrapped sample index k: every read of sample k at bus time τ says
+``t_k <= τ`` and ``t_{k+1} > τ`` (each within a jitter margin), a pair of half-planes in the
+(offset, slope) plane. Their intersection is a convex polygon that stays a band of width T until
+the sawtooth first wraps and then collapses around the true line; ``t`` is the line through the
+polygon's centroid. Drift is tracked by slowly inflating the polygon. ``mode="naive"`` tags each
+sample with the bus time of its first read (the baseline). Method and measured accuracy:
+docs/clock.md.
+
+The per-read loop is one Numba kernel (:mod:`radical_rt.clock_kernels`); this class holds its
+small state arrays, so the output does not depend on how the reads are split into :meth:`push`
+calls, and :meth:`get_state` / :meth:`set_state` checkpoint everything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from radical_rt import clock_layout as L
+from radical_rt.clock_kernels import (
+    O_BR,
+    O_DT,
+    O_DTH,
+    O_ST,
+    O_T,
+    O_TT,
+    O_VAR,
+    clock_run,
+    line_time,
+    period,
+    tag_sigma,
+)
+
+#: counters exposed by :attr:`SiruClock.counters` (the first seven are the interface's)
+COUNTER_NAMES = ("samples", "repeated", "missing", "bridged", "anomalies", "wraps", "resets",
+                 "gaps", "tt_glitches", "tbus_glitches", "time_jumps", "timing_outliers",
+                 "relocks", "unexplained", "repeat_mismatch", "rejected", "tt_jumps",
+                 "margin_grows")
+STATE_SCHEMA = "radical.clock_state/1"
+_CHUNK = 16384  # reads per kernel call (bounds the reused output buffers)
+
+
+@dataclass
+class ClockConfig:
+    """SIRU clock settings (SI units).
+
+    Sequence: ``period_s``, ``ticks_per_sample`` and ``wrap`` describe the time tag (CONTRACT
+    §1.5). Repair: at most ``max_bridge`` consecutive missing samples are bridged (interpolated
+    increments, variance from ``bridge_accel_sigma_rad_s2``); longer runs are gaps. Timing:
+    ``jitter_margin_s`` is the tolerance of every read constraint (bigger than the sample-time
+    jitter plus tag noise; precision once locked is much finer, see docs/clock.md), the polygon
+    grows by ``phase_wander_s_per_s`` and ``freq_wander_per_s`` to follow drift, and the prior
+    frequency offset range is ``freq_offset_ppm ± freq_offset_max_ppm``.
+    """
+
+    period_s: float = 0.01
+    ticks_per_sample: int = 10000
+    wrap: int = 2**32
+    mode: str = "reconstruct"  # or "naive"
+    # --- estimator tuning
+    jitter_margin_s: float = 10e-6  # initial margin; grows (up to jitter_margin_max_s) if violated
+    jitter_margin_max_s: float = 200e-6
+    freq_offset_ppm: float = 0.0  # prior centre of the SIRU frequency offset
+    freq_offset_max_ppm: float = 300.0  # prior half-width
+    phase_wander_s_per_s: float = 1e-9  # phase drift bound (polygon inflation)
+    freq_wander_per_s: float = 1e-10  # frequency drift bound [1/s] (1e-10/s = 0.36 ppm/hour)
+    inflate_interval_s: float = 1.0
+    reset_freq_margin_ppm: float = 0.5  # reset(): widen the kept frequency range by this
+    slope_scale_samples: float = 1000.0  # N_s: polygon slope unit, s per N_s samples
+    lock_sigma_s: float = 100e-6  # `locked` when the tag-error sigma is below this
+    # --- repair
+    max_bridge: int = 3
+    bridge_accel_sigma_rad_s2: float = 1e-3  # angular-acceleration sigma for bridged variance
+    # --- sequence and anomaly checks
+    bus_period_s: float = 0.01
+    check_bus_ticks: bool = True  # reads must fall on the bus's read ticks (within read_tol_s)
+    read_tol_s: float = 1e-3
+    time_tol_s: float = 2e-3  # tt-vs-bus-time consistency tolerance beyond one period
+    max_tt_jump_samples: int = 400000  # a tt step beyond this is not a run of misses
+    reset_window_ticks: int = 100_000_000  # a tt restart below this is a counter reset
+    wrap_window_s: float = 1e-3  # repeats/misses farther than this from the wrap: unexplained
+    gross_violation_s: float = 1e-3  # a rejected read beyond this raises CLOCK_ANOMALY
+    relock_after_reads: int = 50  # consecutive rejected reads before re-acquiring the phase
+    anomaly_hold_s: float = 1.0  # CLOCK_ANOMALY stays raised this long after an event
+
+    def validate(self) -> None:
+        """Raise ValueError on an inconsistent configuration."""
+        if self.mode not in ("reconstruct", "naive"):
+            raise ValueError(f"mode must be 'reconstruct' or 'naive', not {self.mode!r}")
+        for name in ("period_s", "ticks_per_sample", "wrap", "jitter_margin_s", "bus_period_s",
+                     "slope_scale_samples", "inflate_interval_s", "freq_offset_max_ppm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+        if self.max_bridge < 0 or self.relock_after_reads < 1:
+            raise ValueError("max_bridge must be >= 0 and relock_after_reads >= 1")
+
+    def params(self) -> np.ndarray:
+        """The kernel's parameter block (``F[:NPRM]``)."""
+        p = np.zeros(L.NPRM)
+        ns = float(self.slope_scale_samples)
+        y = self.period_s * ns * 1e-6
+        p[L.P_T] = self.period_s
+        p[L.P_TICKS] = self.ticks_per_sample
+        p[L.P_WRAP] = self.wrap
+        p[L.P_NAIVE] = 1.0 if self.mode == "naive" else 0.0
+        p[L.P_DELTA] = self.jitter_margin_s
+        p[L.P_NS] = ns
+        p[L.P_READ_TOL] = self.read_tol_s
+        p[L.P_BUS_T] = self.bus_period_s
+        p[L.P_CHECK_TICKS] = 1.0 if self.check_bus_ticks else 0.0
+        p[L.P_MAX_BRIDGE] = self.max_bridge
+        p[L.P_SIG_ALPHA] = self.bridge_accel_sigma_rad_s2
+        p[L.P_HOLD] = self.anomaly_hold_s
+        p[L.P_WIN] = self.wrap_window_s
+        p[L.P_GROSS] = self.gross_violation_s
+        p[L.P_RELOCK] = self.relock_after_reads
+        p[L.P_RESET_TICKS] = self.reset_window_ticks
+        p[L.P_INFL_DT] = self.inflate_interval_s
+        p[L.P_PHASE_WANDER] = self.phase_wander_s_per_s
+        p[L.P_FREQ_WANDER] = self.freq_wander_per_s
+        p[L.P_Y_LO] = (self.freq_offset_ppm - self.freq_offset_max_ppm) * y
+        p[L.P_Y_HI] = (self.freq_offset_ppm + self.freq_offset_max_ppm) * y
+        p[L.P_MAX_JUMP] = self.max_tt_jump_samples
+        p[L.P_LOCK_SIGMA] = self.lock_sigma_s
+        p[L.P_TIME_TOL] = self.time_tol_s
+        p[L.P_DELTA_MAX] = max(self.jitter_margin_max_s, self.jitter_margin_s)
+        return p
+
+
+class GyroBatch(NamedTuple):
+    """Samples released to the filter, in order."""
+
+    t: np.ndarray  # (m,) reconstructed true sample time on the bus time line [s]
+    dt: np.ndarray  # (m,) true interval t_k - t_{k-1} [s]
+    dtheta: np.ndarray  # (m, n) increments [rad]
+    status: np.ndarray  # (m,) int gyro-invalid bits
+    bridged: np.ndarray  # (m,) bool: synthesized for a missing sample (skip the parity update)
+    var_extra: np.ndarray  # (m,) extra attitude variance per axis [rad^2] (0 if not bridged)
+
+
+_compiled: set[int] = set()
+
+
+def compile_kernels(n_gyro: int = 4) -> None:
+    """Compile (or load from cache) the clock kernel on scratch state, once per process: done by
+    the constructor, so the first packet never waits for the JIT."""
+    if n_gyro in _compiled:
+        return
+    ist = np.zeros(L.NI, np.int64)
+    fst = np.zeros(L.f_size(n_gyro))
+    fst[:L.NPRM] = ClockConfig().params()
+    ist[L.I_NG] = n_gyro
+    out_f = np.zeros((8, O_DTH + n_gyro))
+    out_i = np.zeros((8, 3), np.int64)
+    clock_run(ist, fst, np.array([1.0]), np.array([0], np.int64), np.zeros((1, n_gyro)),
+              np.zeros(1, np.int64), 0, True, out_f, out_i)
+    _compiled.add(n_gyro)
+
+
+class SiruClock:
+    """Streaming SIRU read → sample converter with clock reconstruction (see module docstring)."""
+
+    def __init__(self, config: ClockConfig | None = None, n_gyro: int = 4) -> None:
+        self.config = config if config is not None else ClockConfig()
+        self.config.validate()
+        self.n_gyro = int(n_gyro)
+        if self.n_gyro < 1:
+            raise ValueError("n_gyro must be >= 1")
+        self._I = np.zeros(L.NI, np.int64)
+        self._F = np.zeros(L.f_size(self.n_gyro))
+        self._F[:L.NPRM] = self.config.params()
+        compile_kernels(self.n_gyro)
+        self._I[L.I_NG] = self.n_gyro
+        self._of = np.empty((0, O_DTH + self.n_gyro))
+        self._oi = np.empty((0, 3), np.int64)
+        self._I[L.I_K_A] = -1
+        self._F[L.F_ANOM_UNTIL] = -math.inf
+        self._F[L.F_TAU_NOW] = -math.inf
+        self._F[L.F_Y_LO] = self._F[L.P_Y_LO]
+        self._F[L.F_Y_HI] = self._F[L.P_Y_HI]
+        self._F[L.F_DELTA] = self._F[L.P_DELTA]
+        #: time tags of the samples of the last returned batch (-1 for bridged ones); diagnostic
+        self.last_tt = np.zeros(0, np.int64)
+
+    # ------------------------------------------------------------------ streaming
+    def push(self, t_bus, tt, dtheta, status) -> GyroBatch:
+        """Process one ``siru`` message's columns (k reads, in read order)."""
+        return self._run(t_bus, tt, dtheta, status, final=False)
+
+    def flush(self) -> GyroBatch:
+        """End of stream: release the read held back for look-ahead."""
+        return self._run([], [], np.zeros((0, self.n_gyro)), [], final=True)
+
+    def reset(self) -> None:
+        """Stream discontinuity: forget the sequence and the phase, keep the frequency range and
+        the counters. A held-back read is dropped (call :meth:`flush` first to keep it)."""
+        ist, fst = self._I, self._F
+        ist[L.I_HAVE_A] = 0
+        ist[L.I_HAVE_P] = 0
+        ist[L.I_ACQ] = 0
+        ist[L.I_HAVE_OUT] = 0
+        ist[L.I_CONSEC_REJ] = 0
+        # keep the slope range, widened for drift during the unknown pause
+        dy = self.config.reset_freq_margin_ppm * 1e-6 * fst[L.P_T] * fst[L.P_NS]
+        fst[L.F_Y_LO] = max(fst[L.F_Y_LO] - dy, fst[L.P_Y_LO])
+        fst[L.F_Y_HI] = min(fst[L.F_Y_HI] + dy, fst[L.P_Y_HI])
+
+    def _run(self, t_bus, tt, dtheta, status, final: bool) -> GyroBatch:
+        t_bus = np.ascontiguousarray(t_bus, dtype=np.float64).reshape(-1)
+        tt = np.ascontiguousarray(tt, dtype=np.int64).reshape(-1)
+        k = t_bus.shape[0]
+        dth = np.ascontiguousarray(dtheta, dtype=np.float64).reshape(k, self.n_gyro)
+        st = np.ascontiguousarray(status, dtype=np.int64).reshape(-1)
+        if tt.shape[0] != k or st.shape[0] != k:
+            raise ValueError("t_bus, tt, dtheta and status must have the same length")
+        room = 1 + int(self.config.max_bridge)
+        need = min(k, _CHUNK) + 1 + room
+        if self._of.shape[0] < need:  # output buffers are reused between calls
+            self._of = np.empty((need + need // 4, O_DTH + self.n_gyro))
+            self._oi = np.empty((need + need // 4, 3), np.int64)
+        parts_f, parts_i = [], []
+        j, end = 0, k + 1 if final else k
+        while j < end:  # bounded chunks; the kernel stops early if its output could overflow
+            stop = min(j + _CHUNK, k)
+            last = final and stop == k
+            m, j = clock_run(self._I, self._F, t_bus[:stop], tt[:stop], dth[:stop], st[:stop], j,
+                             last, self._of, self._oi)
+            parts_f.append(self._of[:m].copy())
+            parts_i.append(self._oi[:m].copy())
+        if not parts_f:
+            of, oi = self._of[:0].copy(), self._oi[:0].copy()
+        elif len(parts_f) == 1:
+            of, oi = parts_f[0], parts_i[0]
+        else:
+            of, oi = np.concatenate(parts_f), np.concatenate(parts_i)
+        self.last_tt = oi[:, O_TT]
+        return GyroBatch(of[:, O_T], of[:, O_DT], of[:, O_DTH:], oi[:, O_ST],
+                         oi[:, O_BR].astype(bool), of[:, O_VAR])
+
+    # ------------------------------------------------------------------ status
+    @property
+    def counters(self) -> dict[str, int]:
+        """Cumulative counters (CONTRACT §5 meanings for samples, repeated, missing)."""
+        c = {name: int(self._I[L.C0 + i]) for i, name in enumerate(COUNTER_NAMES)}
+        c["tag_wraps"] = int(self._I[L.I_NET_HI] - self._I[L.I_NET_LO])
+        return c
+
+    @property
+    def anomaly(self) -> bool:
+        """CLOCK_ANOMALY: raised for ``anomaly_hold_s`` of bus time after each anomaly event."""
+        return bool(self._F[L.F_TAU_NOW] < self._F[L.F_ANOM_UNTIL])
+
+    @property
+    def locked(self) -> bool:
+        """The sample-time line is known to better than ``lock_sigma_s``."""
+        return bool(self._I[L.I_ACQ]) and self.tag_error_sigma_s < self.config.lock_sigma_s
+
+    @property
+    def tag_error_sigma_s(self) -> float:
+        """1σ uncertainty of the reconstructed time of the latest sample [s]."""
+        return float(tag_sigma(self._I, self._F))
+
+    def freq_offset_ppm(self) -> float:
+        """Estimated SIRU sample-period offset ε (T_siru = T (1 + ε)) [ppm]."""
+        return float(self._F[L.F_CY] / self._F[L.P_NS] / self._F[L.P_T] * 1e6)
+
+    def telemetry(self) -> dict:
+        """Clock estimates and counters (msgpack-able)."""
+        acq = bool(self._I[L.I_ACQ])
+        k = int(self._I[L.I_K_A])
+        y_lo, y_hi = self._F[L.F_Y_LO], self._F[L.F_Y_HI]
+        scale = 1e6 / self._F[L.P_NS] / self._F[L.P_T]
+        return {
+            "mode": self.config.mode,
+            "locked": self.locked,
+            "anomaly": self.anomaly,
+            "freq_offset_ppm": self.freq_offset_ppm() if acq else self.config.freq_offset_ppm,
+            "freq_offset_range_ppm": [float(y_lo * scale), float(y_hi * scale)],
+            "period_s": float(period(self._F)),
+            "offset_s": float(self._F[L.F_E_LAST]) if acq else None,
+            "t_last_sample_s": float(line_time(self._I, self._F, k)) if acq
+            else None,
+            "tag_error_sigma_s": self.tag_error_sigma_s,
+            "max_rejected_violation_s": float(self._F[L.F_MAX_VIOL]),
+            "jitter_margin_s": float(self._F[L.F_DELTA]),
+            "polygon_vertices": int(self._I[L.I_NV]),
+            "counters": self.counters,
+        }
+
+    # ------------------------------------------------------------------ checkpoint
+    def get_state(self) -> dict:
+        """Everything needed to continue bit-identically (msgpack-able)."""
+        return {
+            "schema": STATE_SCHEMA,
+            "config": asdict(self.config),
+            "n_gyro": self.n_gyro,
+            "I": [int(v) for v in self._I],
+            "F": [float(v) for v in self._F],
+        }
+
+    def set_state(self, state: dict) -> None:
+        """Restore a :meth:`get_state` checkpoint (configuration included)."""
+        if state.get("schema") != STATE_SCHEMA:
+            raise ValueError(f"unknown clock state schema {state.get('schema')!r}")
+        config = ClockConfig(**state["config"])
+        n_gyro = int(state["n_gyro"])
+        ist = np.asarray(state["I"], np.int64)
+        fst = np.asarray(state["F"], np.float64)
+        if ist.shape != (L.NI,) or fst.shape != (L.f_size(n_gyro),):
+            raise ValueError("clock state arrays have the wrong size")
+        fresh = SiruClock(config, n_gyro)
+        fresh._I[:] = ist
+        fresh._F[:] = fst
+        self.__dict__.update(fresh.__dict__)
