@@ -1,0 +1,98 @@
+"""Live dashboards over Zenoh: ``radical monitor tui|web``.
+
+    radical monitor tui [--vehicle V] [--listen EP | --connect EP] [--refresh S]
+    radical monitor web [--vehicle V] [--port P] [--listen EP | --connect EP]
+
+Both subscribe to ``radical/<V>/tlm/*``, ``fault``, ``diag`` (all vehicles when --vehicle is not
+given; the first one seen is shown) and the liveliness tokens ``radical/<V>/alive/filter``. With
+neither --listen nor --connect they connect to the node's default endpoint
+(``tcp/127.0.0.1:7448``). Endpoints must be loopback locators; multicast scouting is off. The web
+server binds 127.0.0.1 only. Exit status 0, 1 on a Zenoh or server failure, 2 on a bad option or
+a missing optional package (textual for tui, bokeh for web).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from monitors.common import VEHICLE_RE
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vehicle", metavar="V", help="vehicle to show ([a-z0-9_-]+; default: first seen)")
+    p.add_argument("--listen", metavar="EP", help="listen on a loopback endpoint tcp/127.0.0.1:PORT")
+    p.add_argument("--connect", metavar="EP",
+                   help="connect to a loopback endpoint (default tcp/127.0.0.1:7448, the node's)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 file loaded first "
+                   "(loopback endpoints and multicast off are still enforced)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="monitor", metavar="{tui,web}")
+    tui = sub.add_parser("tui", help="terminal dashboard (textual)")
+    _common(tui)
+    tui.add_argument("--refresh", type=float, default=0.5, metavar="S",
+                     help="screen refresh period in seconds (default 0.5)")
+    web = sub.add_parser("web", help="web dashboard (Bokeh server on 127.0.0.1)")
+    _common(web)
+    web.add_argument("--port", type=int, default=5006, help="HTTP port on 127.0.0.1 (default 5006)")
+    web.add_argument("--period-ms", type=int, default=250,
+                     help="browser update period in ms (default 250 = 4 Hz)")
+    web.add_argument("--keep", type=int, default=3600,
+                     help="tlm/large packets kept per vehicle in the plots (default 3600)")
+
+
+def _err(msg: str) -> int:
+    print(f"radical monitor: {msg}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    kind = getattr(args, "monitor", None)
+    if kind not in ("tui", "web"):
+        return _err("choose a dashboard: radical monitor tui | radical monitor web")
+    if args.vehicle is not None and not VEHICLE_RE.match(args.vehicle):
+        return _err(f"--vehicle {args.vehicle!r} must match [a-z0-9_-]+")
+    from radical_rt import zconfig
+
+    try:
+        for ep in (args.listen, args.connect):
+            if ep is not None:
+                zconfig.check_endpoint(ep)
+    except zconfig.ZenohConfigError as e:
+        return _err(str(e))
+    if kind == "tui":
+        try:
+            from monitors.tui import run_tui
+        except ImportError as e:
+            return _err(f"the tui needs textual (pip install textual): {e}")
+        try:
+            return run_tui(args.vehicle, args.listen, args.connect, args.zenoh_config, args.refresh)
+        except Exception as e:  # zenoh session failures
+            print(f"radical monitor tui: {type(e).__name__}: {e}", file=sys.stderr)
+            return 1
+    if not (0 < args.port < 65536):
+        return _err(f"--port {args.port} out of range")
+    if args.period_ms < 50 or args.period_ms > 500:
+        return _err("--period-ms must be within 50..500 (≥ 2 Hz updates)")
+    try:
+        from monitors.web import serve
+    except ImportError as e:
+        return _err(f"the web dashboard needs bokeh (pip install bokeh): {e}")
+    from monitors.live import LatestStore, ZenohSource
+
+    store = LatestStore()
+    try:
+        source = ZenohSource(store, None, args.listen, args.connect, args.zenoh_config).start()
+    except Exception as e:
+        print(f"radical monitor web: cannot open Zenoh session: {type(e).__name__}: {e}",
+              file=sys.stderr)
+        return 1
+    try:
+        return serve(store, args.vehicle, args.port, source=source, period_ms=args.period_ms,
+                     keep=args.keep)
+    except OSError as e:
+        source.close()
+        print(f"radical monitor web: cannot serve on 127.0.0.1:{args.port}: {e}", file=sys.stderr)
+        return 1

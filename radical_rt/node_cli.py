@@ -1,0 +1,156 @@
+"""Run the streaming calibration filter over Zenoh (one process, one or more vehicles).
+
+    radical node --vehicle V [--vehicle V2 ...] [--listen EP] [--connect EP] [--zenoh-config FILE]
+                 [--config PARAMS.toml] [--packets PACKETS.toml] [--resume CKPT]
+                 [--checkpoint PATH] [--checkpoint-every S] [--duration S]
+
+Subscribes to ``radical/<V>/{siru,st1,st2,temp}``, publishes ``radical/<V>/tlm/{small,medium,large}``,
+``fault`` and ``diag``, answers commands on ``radical/<V>/cmd`` and holds the liveliness token
+``radical/<V>/alive/filter``. With neither --listen nor --connect it listens on
+tcp/127.0.0.1:7448. SIGINT/SIGTERM: final checkpoint, undeclare, close. See docs/node.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from . import zconfig
+
+log = logging.getLogger("radical.node")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vehicle", action="append", required=True, metavar="V",
+                   help="vehicle name [a-z0-9_-]+ (repeat to serve several vehicles)")
+    p.add_argument("--listen", metavar="EP", help="listen on this loopback endpoint "
+                   f"(tcp/127.0.0.1:PORT; default {zconfig.DEFAULT_ENDPOINT} if no --connect)")
+    p.add_argument("--connect", metavar="EP", help="connect to a router/peer at this endpoint")
+    p.add_argument("--mode", choices=("peer", "client", "router"), default="peer",
+                   help="Zenoh session mode (default peer)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration loaded first "
+                   "(endpoints and multicast scouting are still forced to the loopback rules)")
+    p.add_argument("--config", metavar="PARAMS.toml", help="parameter overrides ([params] table)")
+    p.add_argument("--packets", metavar="PACKETS.toml", help="telemetry packet configuration")
+    p.add_argument("--clock", choices=("reconstruct", "naive"), default="reconstruct",
+                   help="SIRU time tags: online reconstruction (default) or naive bus tags")
+    p.add_argument("--resume", metavar="CKPT", help="restore calibration state from a checkpoint "
+                   "and warm-start (attitude from the next tracker)")
+    p.add_argument("--resume-bump", action="store_true",
+                   help="apply the configured covariance bump when resuming")
+    p.add_argument("--checkpoint", metavar="PATH",
+                   help="checkpoint file (written periodically, on command and at shutdown)")
+    p.add_argument("--checkpoint-every", type=float, default=60.0, metavar="S",
+                   help="seconds of wall time between checkpoints (default 60)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
+    p.add_argument("--queue-size", type=int, default=4096, metavar="N",
+                   help="input queue length in messages (default 4096)")
+    p.add_argument("--block-outputs", action="store_true",
+                   help="BLOCK congestion control for all outputs (default: fault only)")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def _fail(msg: str) -> int:
+    print(f"radical node: {msg}", file=sys.stderr)
+    return 2
+
+
+def _check(args: argparse.Namespace) -> str | None:
+    """Argument errors that need no work (one line each)."""
+    for ep in (args.listen, args.connect):
+        if ep is not None:
+            try:
+                zconfig.check_endpoint(ep)
+            except zconfig.ZenohConfigError as exc:
+                return str(exc)
+    if args.checkpoint_every <= 0:
+        return "--checkpoint-every must be > 0"
+    if args.duration is not None and args.duration <= 0:
+        return "--duration must be > 0"
+    if args.queue_size < 1:
+        return "--queue-size must be ≥ 1"
+    if args.resume_bump and not args.resume:
+        return "--resume-bump needs --resume"
+    if args.checkpoint:
+        parent = Path(args.checkpoint).resolve().parent
+        if not parent.is_dir():
+            return f"--checkpoint {args.checkpoint}: directory does not exist: {parent}"
+    return None
+
+
+def _setup_logging(level: str) -> None:
+    """The node's log lines go to stderr ("radical node: LEVEL message"), whatever root has."""
+    logger = logging.getLogger("radical")
+    for h in [h for h in logger.handlers if getattr(h, "_radical_cli", False)]:
+        logger.removeHandler(h)
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(logging.Formatter("radical node: %(levelname)s %(message)s"))
+    h._radical_cli = True  # type: ignore[attr-defined]
+    logger.addHandler(h)
+    logger.setLevel(getattr(logging, level.upper()))
+    logger.propagate = False
+
+
+def run(args: argparse.Namespace) -> int:
+    _setup_logging(args.log_level)
+    err = _check(args)
+    if err:
+        return _fail(err)
+    from .checkpoint import CheckpointError
+    from .node import FilterNode, build_processors, warm_up
+    from .params import ParamError
+    from .telemetry import PacketError
+    from .transport import TransportError, ZenohTransport
+
+    try:
+        processors = build_processors(args.vehicle, args.config, args.packets, args.clock,
+                                      args.resume, args.resume_bump)
+    except (ValueError, ParamError, PacketError, CheckpointError) as exc:
+        return _fail(str(exc))
+    jit_s = warm_up(args.clock)
+    log.info("Numba kernels ready in %.2f s", jit_s)
+
+    listen, connect = zconfig.endpoints(args.listen, args.connect, "node")
+    try:
+        transport = ZenohTransport(args.mode, listen, connect, config_file=args.zenoh_config)
+    except (TransportError, zconfig.ZenohConfigError) as exc:
+        return _fail(str(exc))
+    node = FilterNode(transport, processors, checkpoint_path=args.checkpoint,
+                      checkpoint_every_s=args.checkpoint_every, queue_size=args.queue_size,
+                      block_outputs=args.block_outputs)
+    stop = threading.Event()
+    got: list[str] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        got.append(signal.Signals(signum).name)
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        node.start()
+        log.info("listening on %s, connecting to %s; ready", listen or "-", connect or "-")
+        end = time.monotonic() + args.duration if args.duration else None
+        while not stop.is_set():
+            if end is not None and time.monotonic() >= end:
+                break
+            if node.loop_error is not None:
+                log.error("filter loop failed: %s", node.loop_error)
+                break
+            stop.wait(0.2)
+        log.info("stopping (%s)", got[0] if got else "duration reached" if end else "loop error")
+    finally:
+        try:
+            node.stop()
+            if args.checkpoint:
+                log.info("final checkpoint written to %s", args.checkpoint)
+        except Exception as exc:
+            log.error("final checkpoint failed: %s", exc)
+        transport.close()
+        for s, h in old.items():
+            signal.signal(s, h)
+    return 1 if node.loop_error is not None else 0

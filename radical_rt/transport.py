@@ -1,0 +1,339 @@
+"""The transport seam of the streaming node: a small protocol, Zenoh 1.x, and an in-memory bus.
+
+The node only needs five things from a middleware, all with raw ``bytes`` payloads:
+
+* ``subscribe(key, callback, remote_only=False)``: ``callback(key, payload)`` for every sample on a
+  key expression (``remote_only``: not the samples this transport publishes itself);
+* ``put(key, payload, block=False)``: publish (``block=True`` = BLOCK congestion control, for data
+  that must not be lost; otherwise DROP);
+* ``queryable(key, handler)``: ``handler(payload) -> reply bytes`` answers queries on a key;
+* ``liveliness_token(key)``: a token visible while the session lives;
+* ``close()``.
+
+Clients (tests, tools) also use ``get(key, payload, timeout) -> [reply bytes]``. Every declaration
+returns a handle with ``undeclare()``.
+
+:class:`ZenohTransport` maps this onto an eclipse-zenoh 1.x session made by
+:func:`radical_rt.zconfig.make_config` (loopback endpoints only, multicast scouting off).
+:class:`InMemoryTransport` connects transports that share an :class:`InMemoryBus` in one process,
+with Zenoh's key-expression wildcards ``*`` (one chunk) and ``**`` (any number of chunks); a bus is
+either synchronous (callbacks run in the publisher's thread) or threaded (one delivery thread per
+subscriber / queryable, in order, like the Zenoh Python binding).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+from . import zconfig
+
+log = logging.getLogger("radical.transport")
+
+SampleCallback = Callable[[str, bytes], None]
+QueryHandler = Callable[[bytes], bytes]
+
+
+class TransportError(RuntimeError):
+    """The transport could not be opened or an operation on it failed (message says why)."""
+
+
+class Handle(Protocol):
+    def undeclare(self) -> None: ...
+
+
+class Transport(Protocol):
+    """What the node needs from a middleware (see module docstring)."""
+
+    def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> Handle: ...
+
+    def put(self, key: str, payload: bytes, block: bool = False) -> None: ...
+
+    def queryable(self, key: str, handler: QueryHandler) -> Handle: ...
+
+    def liveliness_token(self, key: str) -> Handle: ...
+
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]: ...
+
+    def close(self) -> None: ...
+
+
+# ------------------------------------------------------------------------------------ key exprs
+def key_matches(expr: str, key: str) -> bool:
+    """Whether a concrete key matches a key expression with ``*`` and ``**`` chunks."""
+    return _match(expr.split("/"), key.split("/"))
+
+
+def _match(e: list[str], k: list[str]) -> bool:
+    if not e:
+        return not k
+    if e[0] == "**":
+        return any(_match(e[1:], k[i:]) for i in range(len(k) + 1))
+    if not k:
+        return False
+    return (e[0] == "*" or e[0] == k[0]) and _match(e[1:], k[1:])
+
+
+# ------------------------------------------------------------------------------------ in memory
+class _Worker:
+    """One delivery thread running submitted calls in order (threaded bus)."""
+
+    def __init__(self, name: str) -> None:
+        self.q: queue.SimpleQueue = queue.SimpleQueue()
+        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.thread.start()
+
+    def submit(self, fn: Callable[[], Any]) -> None:
+        self.q.put(fn)
+
+    def _run(self) -> None:
+        while (fn := self.q.get()) is not None:
+            try:
+                fn()
+            except Exception:  # a callback error must not kill delivery (as in Zenoh)
+                log.exception("in-memory delivery callback failed")
+
+    def stop(self) -> None:
+        self.q.put(None)
+
+
+class _Decl:
+    def __init__(self, bus: InMemoryBus, kind: str, key: str, fn: Any, owner: Any = None) -> None:
+        self.bus, self.kind, self.key, self.fn = bus, kind, key, fn
+        self.owner = owner  # set for remote-only subscribers: samples from it are not delivered
+        self.worker = _Worker(f"inmem-{kind}-{key}") if bus.threaded and kind != "token" else None
+
+    def undeclare(self) -> None:
+        self.bus._remove(self)
+
+
+class InMemoryBus:
+    """A process-local "network" shared by :class:`InMemoryTransport` instances."""
+
+    def __init__(self, threaded: bool = False) -> None:
+        self.threaded = threaded
+        self._lock = threading.Lock()
+        self._decls: list[_Decl] = []
+
+    def _add(self, d: _Decl) -> _Decl:
+        with self._lock:
+            self._decls.append(d)
+        return d
+
+    def _remove(self, d: _Decl) -> None:
+        with self._lock:
+            if d in self._decls:
+                self._decls.remove(d)
+        if d.worker:
+            d.worker.stop()
+
+    def _find(self, kind: str, key: str) -> list[_Decl]:
+        with self._lock:
+            return [d for d in self._decls if d.kind == kind and key_matches(d.key, key)]
+
+    def sync(self, timeout: float = 10.0) -> bool:
+        """Threaded bus: wait until every delivery submitted so far has run (True if it did)."""
+        with self._lock:
+            workers = [d.worker for d in self._decls if d.worker is not None]
+        events = []
+        for w in workers:
+            ev = threading.Event()
+            w.submit(ev.set)
+            events.append(ev)
+        end = time.monotonic() + timeout
+        return all(ev.wait(max(0.0, end - time.monotonic())) for ev in events)
+
+    def alive(self, expr: str = "**") -> list[str]:
+        """Keys of the liveliness tokens alive now that match ``expr``."""
+        with self._lock:
+            return sorted(d.key for d in self._decls if d.kind == "token" and key_matches(expr, d.key))
+
+
+class InMemoryTransport:
+    """A :class:`Transport` on an :class:`InMemoryBus` (same semantics as Zenoh, no network)."""
+
+    def __init__(self, bus: InMemoryBus | None = None) -> None:
+        self.bus = bus or InMemoryBus()
+        self._mine: list[_Decl] = []
+        self.closed = False
+
+    def _declare(self, kind: str, key: str, fn: Any, owner: Any = None) -> _Decl:
+        if self.closed:
+            raise TransportError("transport closed")
+        d = self.bus._add(_Decl(self.bus, kind, key, fn, owner))
+        self._mine.append(d)
+        return d
+
+    def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> _Decl:
+        return self._declare("sub", key, callback, self if remote_only else None)
+
+    def queryable(self, key: str, handler: QueryHandler) -> _Decl:
+        return self._declare("qbl", key, handler)
+
+    def liveliness_token(self, key: str) -> _Decl:
+        return self._declare("token", key, None)
+
+    def put(self, key: str, payload: bytes, block: bool = False) -> None:
+        if self.closed:
+            raise TransportError("transport closed")
+        data = bytes(payload)
+        for d in self.bus._find("sub", key):
+            if d.owner is self:
+                continue
+            if d.worker:
+                d.worker.submit(functools.partial(d.fn, key, data))
+            else:
+                d.fn(key, data)
+
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+        if self.closed:
+            raise TransportError("transport closed")
+        replies: list[bytes] = []
+        for d in self.bus._find("qbl", key):
+            if d.worker is None:
+                replies.append(bytes(d.fn(bytes(payload))))
+                continue
+            done = threading.Event()
+            box: list[bytes] = []
+
+            def call(d: _Decl = d, box: list[bytes] = box, done: threading.Event = done) -> None:
+                try:
+                    box.append(bytes(d.fn(bytes(payload))))
+                finally:
+                    done.set()
+
+            d.worker.submit(call)
+            if done.wait(timeout) and box:
+                replies.append(box[0])
+        return replies
+
+    def close(self) -> None:
+        for d in self._mine:
+            d.undeclare()
+        self._mine.clear()
+        self.closed = True
+
+
+# ------------------------------------------------------------------------------------ zenoh
+class _ZHandle:
+    def __init__(self, obj: Any) -> None:
+        self.obj = obj
+
+    def undeclare(self) -> None:
+        if self.obj is not None:
+            try:
+                self.obj.undeclare()
+            except Exception as exc:  # already closed session: nothing left to undeclare
+                log.debug("undeclare: %s", exc)
+            self.obj = None
+
+
+class ZenohTransport:
+    """A :class:`Transport` on one eclipse-zenoh 1.x session (loopback endpoints only).
+
+    mode: "peer" (default), "client" or "router"; listen/connect: ``tcp/127.0.0.1:PORT`` locators;
+    config_file: a Zenoh JSON5 file loaded first (endpoints and multicast are still forced by
+    :func:`radical_rt.zconfig.make_config`); extra: more config key paths.
+    """
+
+    ENCODING = "application/msgpack"
+
+    def __init__(self, mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = (),
+                 config_file: str | None = None, extra: dict[str, Any] | None = None) -> None:
+        import zenoh
+
+        self._z = zenoh
+        try:
+            cfg = zconfig.make_config(mode, listen, connect, extra=extra, config_file=config_file)
+        except zconfig.ZenohConfigError:
+            raise
+        except Exception as exc:  # zenoh raises ZError for unreadable/invalid files
+            raise TransportError(f"bad Zenoh configuration: {_one_line(exc)}") from None
+        try:
+            self.session = zenoh.open(cfg)
+        except Exception as exc:
+            raise TransportError(f"cannot open Zenoh session ({mode}, listen={list(listen)}, "
+                                 f"connect={list(connect)}): {_one_line(exc)}") from None
+        self._pubs: dict[tuple[str, bool], Any] = {}
+        self._lock = threading.Lock()
+        self._decls: list[_ZHandle] = []
+        self.closed = False
+
+    def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> _ZHandle:
+        def on_sample(s: Any) -> None:
+            callback(str(s.key_expr), s.payload.to_bytes())
+
+        origin = self._z.Locality.REMOTE if remote_only else None
+        return self._keep(self.session.declare_subscriber(key, on_sample, allowed_origin=origin))
+
+    def _publisher(self, key: str, block: bool) -> Any:
+        with self._lock:
+            pub = self._pubs.get((key, block))
+            if pub is None:
+                cc = self._z.CongestionControl.BLOCK if block else self._z.CongestionControl.DROP
+                pub = self.session.declare_publisher(key, encoding=self._z.Encoding(self.ENCODING),
+                                                     congestion_control=cc)
+                self._pubs[(key, block)] = pub
+            return pub
+
+    def put(self, key: str, payload: bytes, block: bool = False) -> None:
+        self._publisher(key, block).put(payload)
+
+    def queryable(self, key: str, handler: QueryHandler) -> _ZHandle:
+        def on_query(q: Any) -> None:
+            with q:  # dropping the query ends the getter's reply stream
+                try:
+                    reply = handler(q.payload.to_bytes() if q.payload is not None else b"")
+                    q.reply(q.key_expr, reply, encoding=self._z.Encoding(self.ENCODING))
+                except Exception as exc:  # never leave a getter waiting for its timeout
+                    log.exception("query handler failed")
+                    q.reply_err(str(exc).encode())
+
+        return self._keep(self.session.declare_queryable(key, on_query))
+
+    def liveliness_token(self, key: str) -> _ZHandle:
+        return self._keep(self.session.liveliness().declare_token(key))
+
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+        out = []
+        for r in self.session.get(key, payload=payload, timeout=timeout):
+            if r.ok is not None:
+                out.append(r.ok.payload.to_bytes())
+            else:
+                err = r.err.payload.to_bytes() if r.err is not None else b""
+                raise TransportError(f"query {key} failed: {err!r}")
+        return out
+
+    def alive(self, expr: str, timeout: float = 2.0) -> list[str]:
+        """Keys of the liveliness tokens alive now that match ``expr``."""
+        return sorted(str(r.ok.key_expr) for r in self.session.liveliness().get(expr, timeout=timeout)
+                      if r.ok is not None)
+
+    def _keep(self, obj: Any) -> _ZHandle:
+        h = _ZHandle(obj)
+        self._decls.append(h)
+        return h
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        for h in reversed(self._decls):
+            h.undeclare()
+        with self._lock:
+            for pub in self._pubs.values():
+                try:
+                    pub.undeclare()
+                except Exception as exc:
+                    log.debug("publisher undeclare: %s", exc)
+            self._pubs.clear()
+        self.session.close()
+        self.closed = True
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__

@@ -1,0 +1,380 @@
+"""Record ``radical/<vehicle>/**`` to an MCAP archive (`radical record`).
+
+Every sample on the vehicle's keys (inputs, telemetry, faults, diagnostics; CONTRACT §2) is
+written with its payload unchanged to the channel named after its key (§4), with the contract's
+JSON schema when the topic has one:
+
+* one vehicle (``--vehicle messenger``): key ``radical/messenger/tlm/small`` → MCAP topic
+  ``/tlm/small``, exactly as §4 (one file per telemetry stream; ``radical replay`` and
+  ``radical process`` read it as they are);
+* all vehicles (``--vehicle '*'``): key ``radical/messenger/tlm/small`` → MCAP topic
+  ``/messenger/tlm/small`` (the vehicle is kept in the topic, with the schema of ``/tlm/small``
+  and the channel metadata ``vehicle``). Such a file holds several streams and is for inspection,
+  not for replay/process.
+
+Liveliness (``alive/**``) and command (``cmd/**``) keys are not recorded.
+
+log_time = publish_time = the message's bus time in ns (CONTRACT §1.2), read from the payload's
+top-level ``t_bus`` or ``t`` (the last element of a columnar ``t_bus``, e.g. ``/siru``) without
+decoding the rest. A message without a readable bus time gets its receive time expressed on the
+bus time line (the last bus time received from that vehicle plus the wall time elapsed since it
+arrived), or the UTC receive time (ns) if no bus time has been seen yet.
+
+Subscriber callbacks only enqueue (bounded queue; a callback waits at most ``block_s`` for room,
+which back-pressures BLOCK publishers such as ``radical replay``, then drops and counts); one
+writer thread (the caller's) owns the MCAP writer. The file is flushed (chunk closed) every
+``flush_every_s`` seconds, so a recorder killed with SIGKILL leaves a readable prefix (read it with
+ArchiveReader, which warns that it is truncated, or rewrite it with ``archive.recover``).
+SIGINT/SIGTERM or ``--duration`` stop the recording and close the file cleanly.
+
+Sessions: with ``--connect`` only (or neither option: the node's default endpoint) the recorder
+is a Zenoh client of that endpoint, so the node routes other clients' traffic (``radical replay``)
+to it; it waits (retrying) until the endpoint is up. With ``--listen`` it is a peer.
+
+Examples::
+
+    radical record -o run.mcap --vehicle messenger                      # until Ctrl-C
+    radical record -o tlm.mcap --vehicle messenger --topics tlm/small,fault --duration 600
+    radical record -o all.mcap --vehicle '*' --listen tcp/127.0.0.1:7450
+
+Exit status: 0 recorded, 1 Zenoh failure, 2 bad input (output not writable, bad option).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import queue
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import msgpack
+
+from radical_rt.conventions import t_to_ns
+from replayer.archive import ArchiveError, ArchiveWriter
+from replayer.replay import ReplayError, open_session, tool_config
+from replayer.schemas import SCHEMAS, schema_name
+
+VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
+_TOPIC_RE = re.compile(r"^[A-Za-z0-9_*$-]+(/[A-Za-z0-9_*$-]+)*$")
+_SKIP = ("alive", "cmd")
+_MAX_NS = int(1.8e19)
+
+
+class RecordError(Exception):
+    """A recording cannot start; ``str(e)`` is one line."""
+
+
+def check_vehicle(vehicle: str) -> str:
+    if vehicle != "*" and not (isinstance(vehicle, str) and VEHICLE_RE.match(vehicle)):
+        raise RecordError(f"vehicle {vehicle!r} must match [a-z0-9_-]+ or be '*' (all vehicles)")
+    return vehicle
+
+
+def parse_topics(topics: Iterable[str] | str | None) -> list[str] | None:
+    """``"siru,/tlm/small"`` or a list → ``["siru", "tlm/small"]`` (None: everything)."""
+    if topics is None:
+        return None
+    items = topics.split(",") if isinstance(topics, str) else list(topics)
+    out = []
+    for t in items:
+        t = t.strip().strip("/")
+        if not t:
+            continue
+        if not _TOPIC_RE.match(t):
+            raise RecordError(f"bad topic {t!r} (like siru, tlm/small, tlm/*)")
+        if t.split("/")[0] in _SKIP:
+            raise RecordError(f"topic {t!r}: liveliness and command keys are not recorded")
+        out.append(t)
+    if not out:
+        raise RecordError("--topics is empty")
+    return out
+
+
+def bus_time_ns(data: bytes) -> int | None:
+    """Bus time (ns) from a msgpack map's top-level ``t_bus`` or ``t`` (last element of a list);
+    None if there is none or it is not a valid MCAP time. Other values are skipped, not built."""
+    try:
+        up = msgpack.Unpacker(raw=False, strict_map_key=False)
+        up.feed(data)
+        for _ in range(up.read_map_header()):
+            k = up.unpack()
+            if k != "t_bus" and k != "t":
+                up.skip()
+                continue
+            v = up.unpack()
+            if isinstance(v, list | tuple):
+                v = v[-1] if v else None
+            if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) \
+                    and 0 <= v < 1.8e10:
+                return t_to_ns(float(v))
+    except Exception:  # not a map, torn payload, ...
+        return None
+    return None
+
+
+class _RecordWriter(ArchiveWriter):
+    """ArchiveWriter whose channels take the schema of their contract topic: ``/<V>/tlm/small``
+    gets ``radical.tlm.small`` in a wildcard recording (plus channel metadata ``vehicle``)."""
+
+    def __init__(self, *a: Any, wildcard: bool = False, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self._wildcard = wildcard
+        self._schema_ids: dict[str, int] = {}
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is not None:
+            return cid
+        meta: dict[str, str] = {}
+        base = topic
+        if self._wildcard:
+            _, vehicle, rest = topic.split("/", 2)
+            base, meta = "/" + rest, {"vehicle": vehicle}
+        schema = SCHEMAS.get(base)
+        sid = 0
+        if schema is not None:
+            sid = self._schema_ids.get(base, 0)
+            if not sid:
+                sid = self._schema_ids[base] = self._w.register_schema(
+                    schema_name(base), "jsonschema", json.dumps(schema, sort_keys=True).encode())
+        cid = self._channels[topic] = self._w.register_channel(topic, "msgpack", sid, meta)
+        self._seq[cid] = 0
+        return cid
+
+
+def record(out_path: str | os.PathLike[str], vehicle: str, session: Any,
+           duration: float | None = None, topics: Iterable[str] | str | None = None,
+           stop_event: threading.Event | None = None, *, ready_event: threading.Event | None = None,
+           queue_size: int = 65536, block_s: float = 0.25, flush_every_s: float = 0.5,
+           chunk_size: int = 256 * 1024) -> dict[str, Any]:
+    """Record ``radical/<vehicle>/**`` (or only ``topics``) into ``out_path`` until
+    ``stop_event`` is set or ``duration`` seconds have passed; the calling thread is the writer.
+
+    ``ready_event`` is set once the subscribers are declared. Returns ``path``, ``counts``
+    (messages per MCAP topic), ``messages``, ``dropped`` (queue full for ``block_s``),
+    ``skipped`` (liveliness/command keys, deletes), ``time_fallbacks`` (messages logged at receive
+    time), ``queue_max`` (queue high-water mark) and ``wall_s``.
+    """
+    check_vehicle(vehicle)
+    wanted = parse_topics(topics)
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise RecordError(f"duration must be > 0 s, got {duration!r}")
+    if not (queue_size >= 1 and block_s >= 0 and flush_every_s > 0):
+        raise RecordError("queue_size must be >= 1, block_s >= 0 and flush_every_s > 0")
+    wildcard = vehicle == "*"
+    from radical_rt import __version__
+
+    writer = _RecordWriter(out_path, wildcard=wildcard, chunk_size=chunk_size,
+                           scenario={"name": "record", "vehicle": vehicle, "seed": "",
+                                     "generator": f"radical-rt record {__version__}"})
+    stop = stop_event if stop_event is not None else threading.Event()
+    q: queue.Queue[tuple[str, bytes, int, bool]] = queue.Queue(maxsize=queue_size)
+    drops = [0]
+    drop_lock = threading.Lock()
+
+    import zenoh
+
+    put_kind = zenoh.SampleKind.PUT
+
+    def on_sample(sample: Any) -> None:  # zenoh's callback thread: enqueue only
+        try:
+            item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns(),
+                    sample.kind == put_kind)
+            if block_s > 0:
+                q.put(item, timeout=block_s)
+            else:
+                q.put_nowait(item)
+        except queue.Full:
+            with drop_lock:
+                drops[0] += 1
+
+    prefix = f"radical/{vehicle}"
+    keys = [f"{prefix}/**"] if wanted is None else [f"{prefix}/{t}" for t in wanted]
+    subs: list[Any] = []
+    counts: dict[str, int] = {}
+    skipped = fallbacks = qmax = 0
+    anchors: dict[str, tuple[int, int]] = {}  # vehicle -> (bus ns, receive monotonic ns)
+
+    def handle(item: tuple[str, bytes, int, bool]) -> None:
+        nonlocal skipped, fallbacks
+        key, data, t_recv, is_put = item
+        parts = key.split("/", 2)
+        if len(parts) < 3 or parts[0] != "radical" or not is_put \
+                or parts[2].split("/")[0] in _SKIP:
+            skipped += 1
+            return
+        veh, rest = parts[1], parts[2]
+        topic = f"/{veh}/{rest}" if wildcard else f"/{rest}"
+        t = bus_time_ns(data)
+        if t is not None:
+            anchors[veh] = (t, t_recv)
+        else:
+            fallbacks += 1
+            a = anchors.get(veh)
+            if a is not None:
+                t = a[0] + (t_recv - a[1])
+            else:
+                t = time.time_ns() - (time.monotonic_ns() - t_recv)
+            t = min(max(t, 0), _MAX_NS)
+        writer.write_raw(topic, data, t)
+        counts[topic] = counts.get(topic, 0) + 1
+
+    t0 = time.monotonic()
+    try:
+        try:
+            for k in keys:
+                subs.append(session.declare_subscriber(k, on_sample))
+        except Exception as e:
+            raise RecordError(f"cannot subscribe to {k}: {e}") from None
+        if ready_event is not None:
+            ready_event.set()
+        deadline = t0 + duration if duration is not None else None
+        last_flush, flushed = time.monotonic(), 0
+
+        while True:
+            now = time.monotonic()
+            if stop.is_set() or (deadline is not None and now >= deadline):
+                break
+            wait = 0.1 if deadline is None else max(min(0.1, deadline - now), 0.0)
+            try:
+                item = q.get(timeout=wait)
+            except queue.Empty:
+                item = None
+            if item is not None:
+                qmax = max(qmax, q.qsize() + 1)
+                handle(item)
+            now = time.monotonic()
+            if writer.message_count != flushed and now - last_flush >= flush_every_s:
+                writer.flush()
+                last_flush, flushed = now, writer.message_count
+    finally:
+        for s in subs:
+            try:
+                s.undeclare()
+            except Exception:  # session already closed
+                pass
+        try:
+            while True:  # what was received before the undeclare is kept
+                handle(q.get_nowait())
+        except queue.Empty:
+            pass
+        finally:
+            writer.close()
+    return {"path": os.fspath(out_path), "counts": dict(sorted(counts.items())),
+            "messages": sum(counts.values()), "dropped": drops[0], "skipped": skipped,
+            "time_fallbacks": fallbacks, "queue_max": qmax, "wall_s": time.monotonic() - t0}
+
+
+# -------------------------------------------------------------------------------------- CLI
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="archive to write")
+    p.add_argument("--vehicle", required=True,
+                   help="vehicle name ([a-z0-9_-]+), or '*' for all vehicles (topics then "
+                        "keep the vehicle: /<vehicle>/<topic>)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until SIGINT/SIGTERM)")
+    p.add_argument("--topics", default=None, metavar="T1,T2",
+                   help="only these topics, e.g. siru,st1,tlm/small (default: all)")
+    p.add_argument("--listen", metavar="EP", help="listen on EP (tcp/127.0.0.1:PORT)")
+    p.add_argument("--connect", metavar="EP", help="connect to EP (default: the node's "
+                   "default endpoint tcp/127.0.0.1:7448)")
+    p.add_argument("--zenoh-config", metavar="FILE",
+                   help="Zenoh JSON5 file loaded first (endpoints and scouting still enforced)")
+    p.add_argument("--flush-every", type=float, default=0.5, metavar="S",
+                   help="close the chunk and flush the file every S seconds (default 0.5)")
+    p.add_argument("--queue", type=int, default=65536, metavar="N",
+                   help="receive queue length (default 65536)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+
+
+class _Announce(threading.Event):
+    """A ready event that prints one line on stderr when set (the subscribers are declared)."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self._text = text
+
+    def set(self) -> None:
+        print(self._text, file=sys.stderr, flush=True)
+        super().set()
+
+
+def _err(msg: str) -> None:
+    print(f"radical record: error: {' '.join(str(msg).split())}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from radical_rt import zconfig
+
+    try:
+        check_vehicle(args.vehicle)
+        parse_topics(args.topics)
+        if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+            raise RecordError(f"--duration must be > 0 s, got {args.duration!r}")
+        if not (math.isfinite(args.flush_every) and args.flush_every > 0) or args.queue < 1:
+            raise RecordError("--flush-every must be > 0 s and --queue >= 1")
+        out_dir = os.path.dirname(os.path.abspath(args.output))
+        if os.path.isdir(args.output):
+            raise RecordError(f"{args.output}: is a directory")
+        if not os.path.isdir(out_dir):
+            raise RecordError(f"{args.output}: cannot create archive: no directory {out_dir}")
+        cfg, mode, where = tool_config(args.listen, args.connect, "record", args.zenoh_config)
+    except (RecordError, zconfig.ZenohConfigError) as e:
+        _err(str(e))
+        return 2
+    except Exception as e:  # e.g. an unreadable --zenoh-config file
+        _err(f"{type(e).__name__}: {e}")
+        return 2
+
+    stop = threading.Event()
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, lambda *_: stop.set())
+    waiting: list[str] = []
+
+    def on_retry(err: str) -> None:  # a client whose endpoint is not up (yet): say it once
+        if not waiting:
+            waiting.append(err)
+            print(f"radical record: waiting for the endpoint ({where}): {err}", file=sys.stderr,
+                  flush=True)
+
+    try:
+        zenoh.try_init_log_from_env()
+        try:
+            session = open_session(cfg, mode, math.inf, stop, on_retry)
+        except ReplayError as e:
+            _err(f"{e} ({where}); nothing recorded")
+            return 1
+        try:
+            what = "**" if args.topics is None else "{" + args.topics + "}"
+            ready = _Announce(f"radical record: recording radical/{args.vehicle}/{what} to "
+                              f"{args.output} ({where}); SIGINT/SIGTERM to stop")
+            try:
+                res = record(args.output, args.vehicle, session, duration=args.duration,
+                             topics=args.topics, stop_event=stop, ready_event=ready,
+                             queue_size=args.queue, flush_every_s=args.flush_every)
+            except (RecordError, ArchiveError) as e:
+                _err(str(e))
+                return 2
+        finally:
+            session.close()
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    per = ", ".join(f"{t} {n}" for t, n in res["counts"].items()) or "nothing"
+    print(f"radical record: wrote {res['messages']} messages ({per}) to {res['path']} in "
+          f"{res['wall_s']:.1f} s; dropped {res['dropped']}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(res, sort_keys=True))
+    return 0

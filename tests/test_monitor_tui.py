@@ -1,0 +1,139 @@
+"""The terminal dashboard, driven by textual's pilot from an in-memory data source."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import math
+
+import pytest
+
+from monitors.common import fmt_est_sigma
+from monitors.live import LatestStore
+from radical_rt.conventions import ARCSEC, DEG_PER_HR, PPM
+from radical_rt.flags import Flag
+
+
+@pytest.fixture
+def MonitorApp():
+    pytest.importorskip("textual", reason="pip install textual (monitor tui)")
+    from monitors.tui import MonitorApp
+
+    return MonitorApp
+
+
+def large_packet(seq: int = 7, t: float = 1234.5, flags: int = 0) -> dict:
+    """A tlm/large packet as the node publishes it (SI units)."""
+    return {
+        "v": 1, "seq": seq, "t": t, "q_body_from_inertial": [0.0, 0.0, 0.0, 1.0], "flags": flags,
+        "mode": "converging", "omega_body": [0.0, 0.001, 0.0],
+        "est": {"b": [0.5026 * DEG_PER_HR, -0.0997 * DEG_PER_HR, 0.0871 * DEG_PER_HR,
+                      -0.0711 * DEG_PER_HR],
+                "lam": [326.4 * PPM, -261.4 * PPM, 602.8 * PPM, 358.7 * PPM],
+                "mu": [-17.7 * PPM, 10.6 * PPM, -1.5 * PPM, -27.5 * PPM],
+                "du": [489.9 * ARCSEC, 482.6 * ARCSEC, 862.6 * ARCSEC, 816.9 * ARCSEC],
+                "dv": [335.9 * ARCSEC, -304.6 * ARCSEC, -315.5 * ARCSEC, 318.2 * ARCSEC],
+                "phi2": [1331.2 * ARCSEC, -635.5 * ARCSEC, -430.2 * ARCSEC]},
+        "sigma": {"b": [0.0022 * DEG_PER_HR] * 4, "lam": [3.4 * PPM] * 4, "mu": [3.2 * PPM] * 4,
+                  "du": [0.7 * ARCSEC] * 4, "dv": [0.9 * ARCSEC] * 4,
+                  "phi2": [0.06 * ARCSEC, 0.06 * ARCSEC, 0.17 * ARCSEC]},
+        "att_sigma": [0.1 * ARCSEC, 0.1 * ARCSEC, 0.5 * ARCSEC],
+        "residuals": {"st1": {"innov": [1e-6, -2e-6, 5e-5], "sigma": [2e-5, 2e-5, 1.9e-4],
+                              "nis": 2.3, "nis_mean": 3.0},
+                      "parity": {"innov": [3e-8], "sigma": [2.4e-8], "nis": 1.9, "nis_mean": 0.96}},
+        "clock": {"mode": "reconstruct", "locked": True, "anomaly": False,
+                  "freq_offset_ppm": 40.01, "offset_s": 0.0049, "tag_error_sigma_s": 0.0029,
+                  "counters": {"samples": 1000, "repeated": 3, "missing": 2}},
+        "counters": {"siru_samples": 1000, "st1_used": 99, "st2_used": 98, "input_rejected": 0},
+    }
+
+
+def text_of(widget) -> str:
+    """Plain text of a Static widget's content (rich renderables included)."""
+    from rich.console import Console
+
+    con = Console(width=200, file=io.StringIO(), record=True, color_system=None)
+    con.print(widget.content if hasattr(widget, "content") else widget.render())
+    return con.export_text()
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_tui_shows_parameters_flags_rates_and_age(MonitorApp):
+    clock = FakeClock()
+    store = LatestStore(clock=clock)
+    for k in range(10):  # tlm/small at 10 Hz for 1 s
+        clock.now = 100.0 + 0.1 * k
+        store.put("sc1", "tlm/small", {"v": 1, "seq": k, "t": 1234.0 + 0.1 * k, "flags": 0,
+                                       "q_body_from_inertial": [0, 0, 0, 1], "mode": "converging"})
+    pkt = large_packet()
+    store.put("sc1", "tlm/large", pkt)  # as a decoded dict: the in-memory source
+    clock.now = 101.0
+
+    async def go():
+        app = MonitorApp(store, vehicle="sc1", refresh_s=0.05)
+        async with app.run_test(size=(180, 50)) as pilot:
+            await pilot.pause()
+            params = app.query_one("#params")
+            b_a = params.get_cell("b", "e0")
+            assert b_a == fmt_est_sigma("b", 0.5026, 0.0022) == "0.5026 ± 0.00220"
+            assert params.get_cell("λ", "e1") == "-261.4 ± 3.40"
+            assert params.get_cell("δu", "e3") == "816.9 ± 0.70"
+            assert params.get_cell("δa2 (ST2)", "e2") == "-430.20 ± 0.170"
+            assert params.get_cell("δa2 (ST2)", "e3") == ""  # only 3 axes
+            pk = app.query_one("#packets")
+            assert pk.get_cell("tlm/small", "count") == "10"
+            assert pk.get_cell("tlm/large", "count") == "1"
+            assert pk.get_cell("tlm/large", "age") == "0.10"  # receiver monotonic clock
+            assert math.isclose(float(pk.get_cell("tlm/small", "rate")), 10.0, rel_tol=0.15)
+            status = text_of(app.query_one("#status"))
+            assert "converging" in status and "vehicle sc1" in status and "flags -" in status
+            clock_text = text_of(app.query_one("#clock"))
+            assert "40.010 ppm" in clock_text and "2.900 ms" in clock_text
+            res_text = text_of(app.query_one("#residuals"))
+            assert "0.10 0.10 0.50 arcsec" in res_text  # attitude 1σ in arcsec
+            assert "parity" in res_text and "NIS 1.90" in res_text
+            assert "st1_used" in text_of(app.query_one("#counters"))
+
+            # a fault message with a flag: shown by name in the status line and the fault log
+            store.put("sc1", "fault", {"v": 1, "t": 1235.0, "flags": int(Flag.ST2_EDITED),
+                                       "set": ["ST2_EDITED"], "cleared": [], "detail": {}})
+            clock.now = 101.5
+            await pilot.pause(0.2)
+            status = text_of(app.query_one("#status"))
+            assert "ST2_EDITED" in status
+            assert "set: ST2_EDITED" in text_of(app.query_one("#faults"))
+
+            # a new packet updates the table in place
+            pkt2 = large_packet(seq=8, t=1235.5)
+            pkt2["est"]["b"][0] = 0.6 * DEG_PER_HR
+            store.put("sc1", "tlm/large", pkt2)
+            await pilot.pause(0.2)
+            assert params.get_cell("b", "e0") == "0.6000 ± 0.00220"
+            assert pk.get_cell("tlm/large", "count") == "2"
+            await pilot.press("q")
+
+    asyncio.run(go())
+
+
+def test_tui_waits_then_picks_first_vehicle(MonitorApp):
+    store = LatestStore()
+
+    async def go():
+        app = MonitorApp(store, vehicle=None, refresh_s=0.05)
+        async with app.run_test(size=(160, 48)) as pilot:
+            await pilot.pause()
+            assert "waiting" in text_of(app.query_one("#status"))
+            store.put("zz9", "tlm/large", large_packet(flags=int(Flag.PARITY_ALARM)))
+            await pilot.pause(0.2)
+            assert app.vehicle == "zz9"
+            assert "PARITY_ALARM" in text_of(app.query_one("#status"))
+            assert app.query_one("#params").get_cell("μ", "e0") == "-17.7 ± 3.20"
+
+    asyncio.run(go())

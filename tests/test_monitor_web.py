@@ -1,0 +1,197 @@
+"""The web dashboard in real headless Chromium (Debian's /usr/bin/chromium driven by Playwright),
+fed over real Zenoh on loopback.
+
+Needs: ``apt-get install -y chromium`` and ``pip install playwright bokeh`` (never
+``playwright install``: the system Chromium is used through ``executable_path``). A missing
+browser or package FAILS this test with the install command, it does not skip.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import msgpack
+import pytest
+
+from radical_rt import zconfig
+from radical_rt.flags import Flag
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_monitor_tui import large_packet  # noqa: E402
+
+pytestmark = pytest.mark.zenoh
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run"]
+ARTIFACTS = Path(__file__).parent / "artifacts"
+VEHICLE = "webtest"
+
+
+def _require_browser():
+    assert os.path.exists(CHROMIUM), (
+        f"{CHROMIUM} not found: the browser test needs Debian's Chromium "
+        "(apt-get update && apt-get install -y chromium)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError as e:  # pragma: no cover - environment problem
+        pytest.fail(f"playwright missing ({e}): pip install playwright (do NOT run playwright "
+                    "install; the test uses /usr/bin/chromium)")
+    try:
+        import bokeh  # noqa: F401
+    except ImportError as e:  # pragma: no cover
+        pytest.fail(f"bokeh missing ({e}): pip install bokeh")
+    return sync_playwright
+
+
+class Publisher:
+    """Stands in for a filter node: tlm/large + tlm/small at 5 Hz, liveliness token."""
+
+    def __init__(self, endpoint: str) -> None:
+        import zenoh
+
+        self.session = zenoh.open(zconfig.make_config("peer", listen=[endpoint]))
+        self.token = self.session.liveliness().declare_token(f"radical/{VEHICLE}/alive/filter")
+        self.flags = 0
+        self.seq = 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+
+    def put(self, topic: str, msg: dict) -> None:
+        self.session.put(f"radical/{VEHICLE}/{topic}", msgpack.packb(msg, use_bin_type=True))
+
+    def _loop(self) -> None:
+        while not self.stop.is_set():
+            self.seq += 1
+            t = 1000.0 + self.seq
+            pkt = large_packet(seq=self.seq, t=t, flags=self.flags)
+            pkt["est"]["b"][0] *= 1 + 0.01 * self.seq  # moving values
+            pkt["residuals"]["st1"]["innov"][0] = 1e-5 * ((self.seq % 7) - 3)
+            self.put("tlm/large", pkt)
+            self.put("tlm/small", {"v": 1, "seq": self.seq, "t": t, "flags": self.flags,
+                                   "mode": "converging", "q_body_from_inertial": [0, 0, 0, 1]})
+            self.stop.wait(0.2)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.token.undeclare()
+        self.session.close()
+
+
+def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 40.0) -> None:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if proc.poll() is not None:
+            out = proc.stdout.read() if proc.stdout else ""
+            raise AssertionError(f"monitor web exited with {proc.returncode}: {out}")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as r:
+                if r.status == 200:
+                    return
+        except OSError:
+            time.sleep(0.3)
+    raise AssertionError(f"{url} not up within {timeout} s")
+
+
+@pytest.mark.timeout(150)
+def test_web_dashboard_live_in_chromium():
+    sync_playwright = _require_browser()
+    zport, wport = zconfig.free_port(), zconfig.free_port()
+    zep = f"tcp/127.0.0.1:{zport}"
+    pub = Publisher(zep)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "radical_rt.cli", "monitor", "web", "--port", str(wport),
+         "--connect", zep, "--period-ms", "250"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    url = f"http://127.0.0.1:{wport}/"
+    try:
+        _wait_http(url, proc)
+        pub.thread.start()
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 1100})
+            external: list[str] = []
+            page.on("request", lambda r: external.append(r.url) if not r.url.startswith(
+                ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")) else None)
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.goto(url, wait_until="load")
+            page.wait_for_selector("canvas", state="attached", timeout=30000)
+
+            def n_rows() -> int:
+                return page.evaluate("""() => { const d = window.Bokeh && Bokeh.documents[0];
+                    const s = d && d.get_model_by_name('tlm');
+                    return s ? s.data.t.length : -1; }""")
+
+            t0 = time.monotonic()
+            while n_rows() < 3 and time.monotonic() - t0 < 30:
+                time.sleep(0.25)
+            n1 = n_rows()
+            assert n1 >= 3, f"no telemetry rows reached the page (rows={n1})"
+            time.sleep(2.0)
+            n2 = n_rows()
+            assert n2 >= n1 + 5, f"plots did not update live: {n1} -> {n2} rows in 2 s"
+            last_b = page.evaluate("""() => { const s = Bokeh.documents[0].get_model_by_name('tlm');
+                const b = s.data.b0; return b[b.length - 1]; }""")
+            assert 0.5026 < last_b < 0.5026 * 3  # deg/hr, paper units
+            status = page.evaluate("() => Bokeh.documents[0].get_model_by_name('status').text")
+            assert f"vehicle {VEHICLE}" in status and "alive" in status  # liveliness token
+            assert "ST2_EDITED" not in status
+            assert page.evaluate("() => Bokeh.documents[0].get_model_by_name('vehicle').value") \
+                == VEHICLE
+
+            # a fault message with a flag: the flag name appears (status + fault log + timeline)
+            pub.flags = int(Flag.ST2_EDITED)
+            pub.put("fault", {"v": 1, "t": 1000.0 + pub.seq + 0.5, "flags": pub.flags,
+                              "set": ["ST2_EDITED"], "cleared": [], "detail": {"nis": 42.0}})
+            # Bokeh renders into shadow DOM; Playwright's text locators pierce it
+            page.get_by_text("ST2_EDITED", exact=True).first.wait_for(timeout=10000)
+            flag_names = page.evaluate("""() => Array.from(
+                Bokeh.documents[0].get_model_by_name('flags').data.flag)""")
+            assert "ST2_EDITED" in flag_names
+            status = page.evaluate("() => Bokeh.documents[0].get_model_by_name('status').text")
+            assert "ST2_EDITED" in status
+            assert "set: ST2_EDITED" in page.evaluate(
+                "() => Bokeh.documents[0].get_model_by_name('faults').text")
+            time.sleep(1.0)
+            ARTIFACTS.mkdir(exist_ok=True)
+            if not (ARTIFACTS / ".gitignore").exists():  # keep screenshots out of git
+                (ARTIFACTS / ".gitignore").write_text("*\n")
+            shot = ARTIFACTS / "monitor_web.png"
+            page.screenshot(path=str(shot), full_page=True)
+            assert shot.stat().st_size > 20000
+
+            # parameters tab: the group buttons re-point the estimate/σ lines (paper units)
+            page.get_by_text("parameters", exact=True).click()
+            page.get_by_text("λ [ppm]", exact=True).click()
+            page.wait_for_function("""() => {
+                const f = Bokeh.documents[0].get_model_by_name('param_est');
+                return f.renderers[0].glyph.y.field === 'lam0'; }""", timeout=10000)
+            lam = page.evaluate("""() => { const s = Bokeh.documents[0].get_model_by_name('tlm');
+                const v = s.data.lam1; return v[v.length - 1]; }""")
+            assert abs(lam - (-261.4)) < 1e-6
+            time.sleep(1.0)
+            page.screenshot(path=str(ARTIFACTS / "monitor_web_params.png"), full_page=True)
+            assert not external, f"non-loopback requests: {external}"
+            assert not errors, f"browser errors: {errors}"
+            (ARTIFACTS / "monitor_web.json").write_text(json.dumps(
+                {"rows_first": n1, "rows_after_2s": n2, "flags": sorted(set(flag_names))}))
+            browser.close()
+    finally:
+        pub.close()
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)

@@ -1,0 +1,116 @@
+"""Shared helpers and fixtures for the node tests (no tests here; imported by test_node_*.py)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import msgpack
+import pytest
+
+from radical_rt.batch import process
+from radical_rt.checkpoint import capture
+from radical_rt.node import FilterNode, build_processors
+from radical_rt.transport import InMemoryBus, InMemoryTransport
+from replayer.archive import ArchiveReader
+from replayer.synth.api import synthesize
+
+INPUTS = ["/siru", "/st1", "/st2", "/temp"]
+
+
+def make_archive(directory: Path, name: str, seed: int, duration: float, base: str = "2006216") -> Path:
+    """A simulated archive whose bus times start at 1000 s (positive log times)."""
+    sc = directory / f"{name}.toml"
+    sc.write_text(f'base = "{base}"\nt_start_s = 1000.0\n')
+    out = directory / f"{name}.mcap"
+    synthesize(str(sc), out, seed=seed, duration=duration)
+    return out
+
+
+def input_messages(path: Path) -> list[tuple[str, int, bytes]]:
+    """(topic without slash, log_time ns, payload) of the input channels, in log_time order."""
+    with ArchiveReader(path) as r:
+        return [(t[1:], ns, data) for t, ns, data in r.iter_raw(topics=INPUTS)]
+
+
+@pytest.fixture(scope="session")
+def archives(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("node_archives")
+    return {"a60": make_archive(d, "a60", seed=1, duration=60),
+            "b60": make_archive(d, "b60", seed=2, duration=60, base="2005300"),
+            "a120": make_archive(d, "a120", seed=1, duration=120)}
+
+
+@pytest.fixture(scope="session")
+def batch_ref(archives) -> dict[str, dict]:
+    """batch.process summaries of the archives (the reference for bit-identity)."""
+    return {k: process([str(p)], None) for k, p in archives.items()}
+
+
+def cmd(transport, vehicle: str, timeout: float = 10.0, **request) -> dict:
+    """Send one command and return the decoded reply (exactly one reply expected)."""
+    replies = transport.get(f"radical/{vehicle}/cmd", msgpack.packb(request), timeout=timeout)
+    assert len(replies) == 1, f"expected one reply to {request}, got {len(replies)}"
+    return msgpack.unpackb(replies[0], raw=False, strict_map_key=False)
+
+
+class MemNode:
+    """A FilterNode on an in-memory bus plus a client transport on the same bus."""
+
+    def __init__(self, vehicles=("v1",), threaded: bool = False, **node_kw) -> None:
+        self.bus = InMemoryBus(threaded=threaded)
+        build_kw = {k: node_kw.pop(k) for k in ("config", "packets", "resume", "resume_bump")
+                    if k in node_kw}
+        self.node = FilterNode(InMemoryTransport(self.bus), build_processors(list(vehicles), **build_kw),
+                               **node_kw)
+        self.client = InMemoryTransport(self.bus)
+        self.outputs: list[tuple[str, dict]] = []
+        self.client.subscribe("radical/**", self._on_out)
+        self.node.start()
+
+    def _on_out(self, key: str, data: bytes) -> None:
+        if key.split("/", 2)[2] not in ("tlm/small", "tlm/medium", "tlm/large", "fault", "diag"):
+            return  # inputs (and junk) published by the tests themselves
+        self.outputs.append((key, msgpack.unpackb(data, raw=False, strict_map_key=False)))
+
+    def publish(self, vehicle: str, topic: str, data: bytes) -> None:
+        self.client.put(f"radical/{vehicle}/{topic}", data, block=True)
+
+    def idle(self) -> None:
+        assert self.bus.sync() if self.bus.threaded else True
+        assert self.node.wait_idle(30)
+
+    def cmd(self, vehicle: str = "v1", **request) -> dict:
+        return cmd(self.client, vehicle, **request)
+
+    def sp(self, vehicle: str = "v1"):
+        return self.node.vehicles[vehicle].sp
+
+    def state(self, vehicle: str = "v1") -> bytes:
+        """Everything a command could change, as bytes (compare before/after)."""
+        self.idle()
+        return msgpack.packb(capture(self.sp(vehicle)))
+
+    def close(self) -> None:
+        self.node.stop()
+
+
+def feed_archive(mn: MemNode, vehicle: str, msgs, until_ns: int | None = None) -> int:
+    n = 0
+    for topic, ns, data in msgs:
+        if until_ns is not None and ns >= until_ns:
+            break
+        mn.publish(vehicle, topic, data)
+        n += 1
+    mn.idle()
+    return n
+
+
+def wait_for(pred, timeout: float = 30.0, step: float = 0.02, what: str = "condition"):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = pred()
+        if v:
+            return v
+        time.sleep(step)
+    raise AssertionError(f"timed out waiting for {what}")
