@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from . import ud
-from .engine_state import EngineState
+from .engine_state import EngineState, _psl
 from .flags import Flag
 from .geometry import Geometry
 from .model import apply_body_rotation, quat_from_tracker, refresh_geometry, tracker_residual
@@ -222,7 +222,7 @@ class Engine(EngineState):
         if j == 2 and t_epoch - self.last_valid_st.get(1, -math.inf) < self.si.st_stale_s:
             return False  # prefer ST1 as long as it is alive
         R_nom, use_phi = self._mounting(j)
-        phi = self.xp[self.layout["phi2"]]
+        phi = self.xp[_psl(self.layout, "phi2")]
         self.q[:] = quat_from_tracker(np.asarray(q_meas, float), R_nom, phi, use_phi)
         sig_body = np.abs(R_nom.T) @ (self._tracker_sigma(n_stars) * self.si.att_init_scale)
         P0 = np.diag(sig_body**2)
@@ -243,7 +243,7 @@ class Engine(EngineState):
         tau = t_epoch - self.t  # extrapolate the attitude from the last sample to the epoch
         if tau != 0.0:
             apply_body_rotation(q_epoch, self.omega * tau, np.empty(4), np.empty(4))
-        phi = self.xp[self.layout["phi2"]]
+        phi = self.xp[_psl(self.layout, "phi2")]
         tracker_residual(np.asarray(q_meas, float), q_epoch, R_nom, phi, use_phi, self.r3,
                          self.H_att, self.H_phi)
         H = self.Hbuf[:3]

@@ -130,38 +130,40 @@ def correct_increment(y, dt, xp, active, c_out, sgn_out, s_out):
 
 
 @kernel
-def increment_jacobian(c, sgn, s, dt, theta, Wt, dWdu, dWdv, Minv, Gp, active, F):
+def increment_jacobian(g, sgn, s, dt, theta, Wt, dWdu, dWdv, Minv, Gp, active, F):
     """F (3, 5n) = ∂theta_hat/∂p̂ for the gyro parameters (b, lam, mu, du, dv).
 
-    theta (3,) the body increment Gp c; other arguments as in :func:`correct_increment` and
-    :func:`refresh_geometry`. Columns of inactive gyros are zero.
+    g (n,) = W̃ᵀ theta_hat, the corrected increments projected on the range of W̃ (the noise along
+    the parity directions removed, so the Jacobian is not correlated with the parity noise — an
+    errors-in-variables bias otherwise drives λ at rest); sgn, s as from :func:`correct_increment`;
+    theta (3,) = Gp c. Columns of inactive gyros are zero. Equals the exact derivative of
+    theta_hat(p̂) whenever c lies in the range of W̃ᵀ (noise-free data).
     """
-    n = c.shape[0]
+    n = g.shape[0]
     F[:, :] = 0.0
     for i in range(n):
         if not active[i]:
             continue
-        wth = Wt[0, i] * theta[0] + Wt[1, i] * theta[1] + Wt[2, i] * theta[2]
-        resid = c[i] - wth
         for r in range(3):
             F[r, i] = -Gp[r, i] * dt / s[i]
-            F[r, n + i] = -Gp[r, i] * c[i] / s[i]
-            F[r, 2 * n + i] = -Gp[r, i] * sgn[i] * c[i] / s[i]
+            F[r, n + i] = -Gp[r, i] * g[i] / s[i]
+            F[r, 2 * n + i] = -Gp[r, i] * sgn[i] * g[i] / s[i]
         for k in range(2):
             D = dWdu if k == 0 else dWdv
             dth = D[0, i] * theta[0] + D[1, i] * theta[1] + D[2, i] * theta[2]
             col = (3 + k) * n + i
             for r in range(3):
-                F[r, col] = (Minv[r, 0] * (D[0, i] * resid - Wt[0, i] * dth)
-                             + Minv[r, 1] * (D[1, i] * resid - Wt[1, i] * dth)
-                             + Minv[r, 2] * (D[2, i] * resid - Wt[2, i] * dth))
+                F[r, col] = -(Minv[r, 0] * Wt[0, i] + Minv[r, 1] * Wt[1, i]
+                              + Minv[r, 2] * Wt[2, i]) * dth
 
 
 @kernel
-def parity_rows(c, sgn, s, dt, theta, N, dWdu, dWdv, z_acc, H_acc):
-    """Accumulate the parity residual z = Nᵀc (n−3,) and its rows H = −∂z/∂p̂ (n−3, 5n).
+def parity_rows(c, g, sgn, s, dt, theta, N, dWdu, dWdv, z_acc, H_acc):
+    """Accumulate the parity residual z = Nᵀc (n−3,) and its rows H = −∂z/∂p̂ (n−3, ≥5n).
 
-    Adds into z_acc (n−3,) and H_acc (n−3, ≥5n) (columns in parameter order b, lam, mu, du, dv).
+    c (n,) corrected increments (the measurement); g (n,) = W̃ᵀ theta_hat is used in the λ and μ
+    columns instead of c so that H carries no parity-direction noise (see
+    :func:`increment_jacobian`). Columns in parameter order b, lam, mu, du, dv.
     """
     n = c.shape[0]
     for r in range(N.shape[1]):
@@ -170,8 +172,8 @@ def parity_rows(c, sgn, s, dt, theta, N, dWdu, dWdv, z_acc, H_acc):
             p = N[i, r]
             z += p * c[i]
             H_acc[r, i] += p * dt / s[i]
-            H_acc[r, n + i] += p * c[i] / s[i]
-            H_acc[r, 2 * n + i] += p * sgn[i] * c[i] / s[i]
+            H_acc[r, n + i] += p * g[i] / s[i]
+            H_acc[r, 2 * n + i] += p * sgn[i] * g[i] / s[i]
             H_acc[r, 3 * n + i] += p * (dWdu[0, i] * theta[0] + dWdu[1, i] * theta[1]
                                         + dWdu[2, i] * theta[2])
             H_acc[r, 4 * n + i] += p * (dWdv[0, i] * theta[0] + dWdv[1, i] * theta[1]

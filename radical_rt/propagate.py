@@ -43,6 +43,7 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     sg = np.empty(n)
     s = np.empty(n)
     th = np.empty(3)
+    gh = np.empty(n)
     F = np.empty((3, 5 * n))
     work4 = np.empty(4)
     dq = np.empty(4)
@@ -70,7 +71,9 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
             th[r] = G[r, 0] * c[0]
             for i in range(1, n):
                 th[r] += G[r, i] * c[i]
-        increment_jacobian(c, sg, s, h, th, Wt, dWdu, dWdv, Mi, G, active, F)
+        for i in range(n):
+            gh[i] = (Wt[0, i] * th[0] + Wt[1, i] * th[1] + Wt[2, i] * th[2]) if active[i] else 0.0
+        increment_jacobian(gh, sg, s, h, th, Wt, dWdu, dWdv, Mi, G, active, F)
         Rt = rotvec_to_dcm(th).T
         Phi_aa[:, :] = Rt @ Phi_aa
         Phi_ap[:, :5 * n] = Rt @ Phi_ap[:, :5 * n] + F
@@ -80,7 +83,7 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
             omega[r] = th[r] / h
         apply_body_rotation(q, th, work4, dq)
         if n_act == n and not bridged[k] and N.shape[1] > 0:
-            parity_rows(c, sg, s, h, th, N, dWdu, dWdv, z_par, H_par)
+            parity_rows(c, gh, sg, s, h, th, N, dWdu, dWdv, z_par, H_par)
             acc_i[1] += 1
             acc_f[1] += arw_var * h
         acc_i[0] += 1

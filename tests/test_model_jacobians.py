@@ -82,9 +82,9 @@ def test_increment_and_parity_jacobians_match_finite_differences(seed):
     correct_increment(y, dt, xp, act, c, sg, s)
     th = Gp @ c
     F = np.zeros((3, 5 * N_G))
-    increment_jacobian(c, sg, s, dt, th, Wt, dWdu, dWdv, Minv, Gp, act, F)
+    increment_jacobian(Wt.T @ th, sg, s, dt, th, Wt, dWdu, dWdv, Minv, Gp, act, F)
     z, H = np.zeros(N_G - 3), np.zeros((N_G - 3, 5 * N_G + 3))
-    parity_rows(c, sg, s, dt, th, N, dWdu, dWdv, z, H)
+    parity_rows(c, Wt.T @ th, sg, s, dt, th, N, dWdu, dWdv, z, H)
     scale = np.concatenate([[1e-3 * DEG_PER_HR] * N_G, [1e-3 * PPM] * (2 * N_G), [1e-3 * ARCSEC] * (2 * N_G)])
     for k in range(5 * N_G):
         e = np.zeros_like(xp)
@@ -125,7 +125,7 @@ def test_attitude_error_propagation_matches_nonlinear_model():
     c, sg, s = np.zeros(N_G), np.zeros(N_G), np.zeros(N_G)
     correct_increment(y, 0.01, xp_est, np.ones(N_G, np.bool_), c, sg, s)
     F = np.zeros((3, 5 * N_G))
-    increment_jacobian(c, sg, s, 0.01, Gp @ c, Wt, dWdu, dWdv, Minv, Gp, np.ones(N_G, np.bool_), F)
+    increment_jacobian(Wt.T @ (Gp @ c), sg, s, 0.01, Gp @ c, Wt, dWdu, dWdv, Minv, Gp, np.ones(N_G, np.bool_), F)
     pred = Rotation.from_rotvec(th_hat).as_matrix().T @ dth0 + F @ dp[:5 * N_G]
     np.testing.assert_allclose(dth1, pred, atol=1e-3 * np.linalg.norm(dth1))
 
