@@ -7,7 +7,7 @@ mode, and turns them into output snapshots (SI) and msgpack-able checkpoints.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import defaultdict, deque
 from typing import Any
 
 import numpy as np
@@ -15,6 +15,7 @@ import numpy as np
 from . import ud
 from .flags import Flag
 from .geometry import Geometry
+from .model import contract_from_internal
 from .state import PARAM_GROUPS, StateLayout
 
 
@@ -31,17 +32,27 @@ class EngineState:
         self.U, self.d, self.dx = np.eye(ns), np.ones(ns), np.zeros(ns)
         self.h, self.r3 = np.zeros(ns), np.zeros(3)
         self.H_att, self.H_phi = np.zeros((3, 3)), np.zeros((3, 3))
-        self.Wt, self.dWdu, self.dWdv = (np.zeros((3, n)) for _ in range(3))
+        self.A = np.zeros((3, n))  # estimated scaled sense axes (internal parametrization)
         self.Minv, self.Gp, self.N = np.eye(3), np.zeros((3, n)), geometry.N.copy()
         self.Phi_aa, self.Phi_ap, self.Q_aa = np.eye(3), np.zeros((3, npar)), np.zeros((3, 3))
-        self.z_par, self.H_par = np.zeros(nr), np.zeros((nr, npar))
-        self.acc_i, self.acc_f = np.zeros(2, np.int64), np.zeros(2)
+        self.z_par, self.H_par = np.zeros(nr), np.zeros((nr, npar))  # parity measurement buffers
+        self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))  # parity-sum statistics
+        self.theta_par, self.Phi_par = np.zeros(3), np.zeros((3, 5 * n))
+        self.parity_queue: deque = deque()  # closed parity sums waiting for their lag
+        self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(3)
+        self.th_acc = np.zeros(3)  # Σθ̂ over the time-update window
+        self.kappa_last = np.ones(2)  # last regressor reliability (time update, parity)
         self.omega = np.zeros(3)
         m_max = max(3, nr)  # measurement rows per update (tracker 3, parity n−3)
         self.Hbuf, self.Fbuf = np.zeros((m_max, ns)), np.zeros((m_max, ns))
         self.Sbuf, self.innov, self.sig = np.zeros((m_max, m_max)), np.zeros(m_max), np.zeros(m_max)
+        self.Hwbuf, self.zwbuf, self.Lbuf = np.zeros((m_max, ns)), np.zeros(m_max), np.zeros((m_max, m_max))
         self.ws = ud.UDWorkspace(ns)
         self.param_idx = np.arange(3, ns, dtype=np.int64)
+        self.gyro_mask = np.zeros(ns, dtype=np.bool_)  # the gyro calibration states (b … dv)
+        self.gyro_mask[layout.gyro_params] = True
+        self.scale_mask = self.gyro_mask.copy()  # λ, μ, du, dv (the gyro calibration but b)
+        self.scale_mask[layout["b"]] = False
         self.excluded = np.zeros(n, dtype=np.bool_)
         self.flags = int(Flag.NOT_CONVERGED)
         self.mode = "init"
@@ -60,14 +71,30 @@ class EngineState:
         ud.variances(self.U, self.d, self.ws.var)
         return self.ws.var.copy()
 
+    def contract_params(self) -> tuple[np.ndarray, np.ndarray]:
+        """Parameter estimate (npar,) and covariance (npar, npar) in the CONTRACT §1.5 parameters.
+
+        The engine estimates internal parameters (linear scaled-axis form, :mod:`radical_rt.model`);
+        this converts exactly, with the covariance mapped by the conversion's Jacobian.
+        """
+        xc, J = contract_from_internal(self.xp, self.n_gyro)
+        P = np.empty((self.ns, self.ns))
+        ud.ud_to_cov(self.U, self.d, P)
+        Pp = P[3:, 3:]
+        return xc, J @ Pp @ J.T
+
     def estimates(self) -> dict[str, list[float]]:
-        """Parameter estimates per group, SI."""
-        return {g: self.xp[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
+        """Parameter estimates per group (CONTRACT §1.5 parameters), SI."""
+        xc, _ = contract_from_internal(self.xp, self.n_gyro)
+        return {g: xc[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
 
     def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
-        """Parameter 1σ per group, SI."""
-        var = self.variances() if var is None else var
-        return {g: np.sqrt(var[self.layout[g]]).tolist() for g in PARAM_GROUPS}
+        """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for
+        compatibility): the σ come from the full parameter covariance mapped to the contract's
+        parameters."""
+        _, Pc = self.contract_params()
+        sd = np.sqrt(np.maximum(np.diag(Pc), 0.0))
+        return {g: sd[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
 
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, convergence test on the UD variances, and the mode."""
@@ -96,7 +123,7 @@ class EngineState:
         return {
             "t": self.t, "q_body_from_inertial": self.q.tolist(), "flags": int(self.flags),
             "mode": self.mode, "omega_body": self.omega.tolist(), "est": self.estimates(),
-            "sigma": self.sigmas(var), "att_sigma": np.sqrt(var[:3]).tolist(),
+            "sigma": self.sigmas(), "att_sigma": np.sqrt(var[:3]).tolist(),
             "residuals": self.residual_stats(), "counters": dict(self.counters),
             "excluded": [int(i) for i in np.nonzero(self.excluded)[0]],
         }

@@ -5,11 +5,17 @@ The engine is driven by events in time order (see :mod:`radical_rt.stream`): gyr
 epoch on the gyro time line. It holds only UD factors (U, d) of the covariance; full covariance
 entries are computed for outputs only. All numbers SI; see :mod:`radical_rt.conventions`.
 
-Cycle (notes §14): samples are propagated one by one (:func:`propagate.propagate_window`); every
-``parity_window`` samples, or at a tracker epoch, the window closes: structured UD time update,
-parameter process noise (Agee-Turner), the parity (null-space) update; at a tracker epoch the three
-tracker residual components follow as scalar Bierman updates after a joint χ² edit test. The
-correction is then folded into the attitude quaternion and the parameters.
+Cycle (notes §14, docs/engine.md): samples are propagated one by one
+(:func:`propagate.propagate_window`); every ``prop_window`` samples, or at a tracker epoch, the
+time-update window closes: structured UD time update and parameter process noise (Agee-Turner). At
+a tracker epoch the three tracker residual components follow (joint χ² edit test, then scalar
+Bierman updates). The correction is then folded into the attitude quaternion and the parameters.
+The parity (null-space) measurement is a sum over ``parity_window`` samples kept as sufficient
+statistics and processed ``parity_lag_s`` later, linearized about the estimate of that time.
+
+The gyro parameters are estimated in the internal *linear* form of :mod:`radical_rt.model` (scaled
+sense axes a_i = (1+λ')w_i − du'v_i − dv'u_i, μ' = μ/(1+λ)); :meth:`EngineState.estimates` and
+:meth:`EngineState.sigmas` report the CONTRACT's parameters (exact conversion, covariance mapped).
 """
 
 from __future__ import annotations
@@ -22,12 +28,18 @@ from . import ud
 from .engine_state import EngineState, _psl
 from .flags import Flag
 from .geometry import Geometry
-from .model import apply_body_rotation, quat_from_tracker, refresh_geometry, tracker_residual
+from .model import (
+    apply_body_rotation,
+    parity_from_stats,
+    quat_from_tracker,
+    refresh_axes,
+    tracker_residual,
+)
 from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .rotation import quat_conj, quat_mul, rotvec_to_quat
 from .state import PARAM_GROUPS, StateLayout
-from .updates import gated_update
+from .updates import gated_update, gated_update_consider
 
 
 class Engine(EngineState):
@@ -54,6 +66,7 @@ class Engine(EngineState):
         self.d[:3] = 1.0
         self.d[3:] = np.asarray(self.si.p0_params)
         self.N[:, :] = self.geo.N
+        self.parity_queue.clear()
         self._refresh()
         self._begin_attitude_init()
         self.counters["cold_starts"] += 1
@@ -122,16 +135,16 @@ class Engine(EngineState):
         while k < stop:
             k_next, pflags = propagate_window(
                 dtheta[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k,
-                self.excluded, self.xp, self.q, self.Wt, self.dWdu, self.dWdv, self.Minv, self.Gp,
-                self.N, self.Phi_aa, self.Phi_ap, self.Q_aa, self.z_par, self.H_par, self.acc_i,
-                self.acc_f, self.si.parity_window, self.si.arw_var_per_s, self.omega)
+                self.excluded, self.xp, self.q, self.A, self.geo.W, self.geo.U, self.geo.V,
+                self.Minv, self.Gp, self.N, self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t, self.acc_i,
+                self.acc_f, self.th_acc, self.si.prop_window, self.si.arw_var_per_s, self.omega)
             self.counters["siru_used"] += k_next - k
             if pflags & PROP_UNDETERMINED:
                 self.counters["siru_undetermined"] += 1
             self.masked = bool(pflags & PROP_MASKED)
             self.t = float(t[k_next - 1])
             k = k_next
-            if self.acc_i[0] >= self.si.parity_window:
+            if self.acc_i[0] >= self.si.prop_window:
                 self._close_window()
                 self._apply_correction()
                 self.on_window(self.t)
@@ -139,36 +152,125 @@ class Engine(EngineState):
 
     # ---------------------------------------------------------------- window close
     def _reset_window(self) -> None:
+        """Reset the time-update and the parity accumulators."""
+        self._reset_time_window()
+        self._reset_parity()
+
+    def _reset_time_window(self) -> None:
         self.Phi_aa[:, :] = np.eye(3)
         self.Phi_ap[:, :] = 0.0
         self.Q_aa[:, :] = 0.0
-        self.z_par[:] = 0.0
-        self.H_par[:, :] = 0.0
-        self.acc_i[:] = 0
-        self.acc_f[:] = 0.0
+        self.acc_i[0] = 0
+        self.acc_f[0] = 0.0
+        self.th_acc[:] = 0.0
+
+    def _reset_parity(self) -> None:
+        self.par_y[:, :] = 0.0
+        self.par_t[:, :] = 0.0
+        self.acc_i[1:] = 0
+        self.acc_f[1:] = 0.0
+
+    def _regressor_reliability(self, theta, Phi_g, noise_var: float) -> float:
+        """Reliability κ ∈ [0, 1] of a summed body increment Θ̂ as the regressor of the λ, μ, du, dv
+        columns (errors-in-variables control, docs/engine.md).
+
+        Those columns are linear in the *true* increment Θ; the filter has Θ̂ = Θ + u, where u, with
+        covariance S = Φ_g P_gg Φ_gᵀ + noise·(AAᵀ)⁻¹ (Φ_g = ∂Θ̂/∂p̂, P_gg the gyro-parameter
+        covariance), does not shrink with Θ: at rest Θ̂ is the bias error and the noise. Used as an
+        exact regressor, such a Θ̂ gives the scale factors and misalignments information the data do
+        not contain. κ = max(0, 1 − K² s_∥/|Θ̂|²), s_∥ = Θ̂ᵀSΘ̂/|Θ̂|² the variance of u along Θ̂,
+        K = ``regressor_k_sigma``: the columns are used in full once the rotation is significant
+        at K σ and not at all when it is not (regression calibration of the regressor).
+        """
+        th2 = float(theta @ theta)
+        if th2 <= 0.0:
+            return 0.0
+        n = self.n_gyro
+        g = slice(3, 3 + 5 * n)
+        Ug = self.U[g, :]
+        Pgg = (Ug * self.d) @ Ug.T
+        v = Phi_g.T @ theta
+        s_par = (float(v @ Pgg @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
+        return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
+
+    def _scale_regressor_columns(self, M, kappa: float) -> None:
+        """Scale the λ, μ, du, dv columns (gyro-parameter order) of M (rows, ≥ 5n columns) by κ."""
+        n = self.n_gyro
+        M[:, n:3 * n] *= kappa
+        M[:, 3 * n:5 * n] *= kappa
 
     def _close_window(self) -> None:
-        """Structured time update, parameter process noise and the parity update."""
+        """Structured time update, parameter process noise, and the parity sums that are due.
+
+        A parity sum runs over ``parity_window`` samples, across time-update windows and tracker
+        epochs (the quantization of the accumulated angle telescopes over it: noise q²/6 per
+        contiguous run however long). It measures the (constant) parameters only, so it is kept as
+        sufficient statistics and processed ``parity_lag_s`` later, linearized about the estimate
+        of that time (:func:`model.parity_from_stats`): its λ, μ, du, dv rows are proportional to
+        the body rotation over the sum, whose direction is only as good as the current
+        calibration; the lag lets the trackers fix that direction first (docs/engine.md).
+        """
         if self.acc_i[0] == 0:
             return
+        n = self.n_gyro
+        kappa = self._regressor_reliability(
+            self.th_acc, self.Phi_ap[:, :5 * n],
+            self.si.arw_var_per_s * self.acc_f[0] + self.si.quant_var)
+        self.kappa_last[0] = kappa
+        if kappa < 1.0:
+            self._scale_regressor_columns(self.Phi_ap, kappa)
         self._check(ud.structured_time_update(self.U, self.d, 3, self.Phi_aa, self.Phi_ap,
                                               self.Q_aa, self.ws.struct))
         self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
                                           self.q_params * self.acc_f[0], self.ws.a))
-        if self.acc_i[1] > 0 and not self.excluded.any():
-            nr = self.N.shape[1]
-            self.Hbuf[:nr, :] = 0.0
-            self.Hbuf[:nr, 3:] = self.H_par
-            rd = np.full(nr, self.acc_f[1] + self.si.quant_var)
-            self._vector_update("parity", self.Hbuf[:nr], self.z_par, rd, self.si.gate_parity_nis)
-        self._reset_window()
+        self._reset_time_window()
+        if self.acc_i[1] >= self.si.parity_window:
+            self._queue_parity()
+        while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
+            self._parity_update(*self.parity_queue.popleft()[1:])
 
-    def _vector_update(self, kind: str, H, z, rdiag, gate: float) -> bool:
-        """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics."""
+    def _queue_parity(self) -> None:
+        if self.acc_i[1] > 0 and not self.excluded.any():
+            noise = self.acc_f[1] + self.acc_i[2] * self.si.quant_var
+            self.parity_queue.append((self.t, self.par_y.copy(), self.par_t.copy(), noise))
+        self._reset_parity()
+
+    def _parity_update(self, par_y, par_t, noise: float) -> None:
+        """Parity update of one closed sum, linearized about the current estimate."""
+        if self.excluded.any():
+            return
+        nr = self.N.shape[1]
+        parity_from_stats(par_y, par_t, self.xp, self.A, self.Gp, self.N, self.geo.W,
+                          self.geo.U, self.geo.V, self.z_par, self.H_par, self.theta_par,
+                          self.Phi_par)
+        self.Hbuf[:nr, :] = 0.0
+        self.Hbuf[:nr, 3:] = self.H_par
+        consider = None
+        if self.timing_sigma() > self.si.timing_consider_s:
+            # The trackers do not calibrate yet (time line not locked), so the direction of the
+            # rotation is only as good as the prior calibration: the scale factors and
+            # misalignments are consider states of the parity (their signal is kept in S).
+            consider = self.scale_mask
+        kappa = self._regressor_reliability(self.theta_par, self.Phi_par, noise)
+        self.kappa_last[1] = kappa
+        if kappa < 1.0:
+            self._scale_regressor_columns(self.Hbuf[:nr, 3:], kappa)
+        self._vector_update("parity", self.Hbuf[:nr], self.z_par, np.full(nr, noise),
+                            self.si.gate_parity_nis, consider)
+
+    def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
+        """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics.
+        consider (ns,) bool: Schmidt consider states (not corrected, covariance kept)."""
         m = H.shape[0]
-        status, nis, edited = gated_update(
-            self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, self.Fbuf[:m],
-            self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f, self.ws.v, self.ws.k)
+        if consider is None:
+            status, nis, edited = gated_update(
+                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, self.Fbuf[:m],
+                self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f, self.ws.v, self.ws.k)
+        else:
+            status, nis, edited = gated_update_consider(
+                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, consider,
+                self.Fbuf[:m], self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f,
+                self.ws.v, self.ws.k, self.ws.a)
         self._check(status)
         self.diag_last[kind] = (self.innov[:m].copy(), self.sig[:m].copy(), float(nis))
         if edited:
@@ -177,6 +279,45 @@ class Engine(EngineState):
         self.counters[f"{kind}_used"] += 1
         self.nis_sum[kind] += nis
         return True
+
+    def _correlated_update(self, kind: str, H, z, R, consider=None) -> bool:
+        """Gated update with a full noise covariance R (m, m): whitened (ud.decorrelate) rows, then
+        :meth:`_vector_update`; the diagnostics are mapped back to physical units."""
+        m = H.shape[0]
+        Hw, zw, L = self.Hwbuf[:m], self.zwbuf[:m], self.Lbuf[:m, :m]
+        self._check(ud.decorrelate(H, z, R, Hw, zw, L))
+        used = self._vector_update(kind, Hw, zw, np.ones(m), self.si.gate_st_nis, consider)
+        innov_w, sig_w, nis = self.diag_last[kind]
+        S = L @ (self.Sbuf[:m, :m]) @ L.T
+        self.diag_last[kind] = (L @ innov_w, np.sqrt(np.maximum(np.diag(S), 0.0)), nis)
+        return used
+
+    def timing_sigma(self) -> float:
+        """1σ [s] of the gyro time line at the latest sample (the SIRU clock reconstruction), used
+        to add (ω̂·σ_t)² along the rate to the tracker noise; 0 without a source."""
+        src = self.timing_sigma_source
+        if src is None:
+            return 0.0
+        sig = float(src())
+        return sig if math.isfinite(sig) and sig > 0.0 else 0.0
+
+    timing_sigma_source = None  # callable() → s, e.g. lambda: clock.tag_error_sigma_s
+
+    @property
+    def listener(self):
+        """Callable(t) run after every window close (the stream's output scheduler)."""
+        return self._listener
+
+    @listener.setter
+    def listener(self, fn) -> None:
+        # The stream processor installs its bound method here; it owns the SIRU clock, whose
+        # reconstruction uncertainty becomes the timing source unless one was set explicitly.
+        self._listener = fn
+        clock = getattr(getattr(fn, "__self__", None), "clock", None)
+        if self.timing_sigma_source is None and hasattr(clock, "tag_error_sigma_s"):
+            self.timing_sigma_source = lambda: clock.tag_error_sigma_s
+
+    _listener = None
 
     def _apply_correction(self) -> None:
         """Fold dx into the attitude quaternion and the parameters; dx ← 0."""
@@ -190,8 +331,8 @@ class Engine(EngineState):
         self._refresh()
 
     def _refresh(self) -> None:
-        status = refresh_geometry(self.xp, self.geo.W, self.geo.U, self.geo.V, self.N.copy(),
-                                  self.Wt, self.dWdu, self.dWdv, self.Minv, self.Gp, self.N)
+        status = refresh_axes(self.xp, self.geo.W, self.geo.U, self.geo.V, self.N.copy(), self.A,
+                              self.Minv, self.Gp, self.N)
         if status != 0:
             self._numeric("sense-axis geometry singular")
 
@@ -250,8 +391,23 @@ class Engine(EngineState):
         H[:, :] = 0.0
         H[:, :3] = self.H_att
         H[:, self.layout["phi2"]] = self.H_phi
-        used = self._vector_update(f"st{j}", H, self.r3, self._tracker_sigma(n_stars) ** 2,
-                                   self.si.gate_st_nis)
+        rdiag = self._tracker_sigma(n_stars) ** 2
+        v = R_nom @ self.omega  # attitude error per second of epoch error, tracker axes [rad/s]
+        sig_t = self.timing_sigma()
+        ratio = sig_t * sig_t * float(v @ v) / float(rdiag.min())
+        if ratio > 1e-4:  # below, the timing term is < 0.01 % of the tracker variance
+            # Epoch error δt of the gyro time line → attitude error R ω̂ δt (rank one in tracker
+            # axes). While it is not small against the tracker noise (clock not locked, body
+            # turning), it is a slowly varying bias, not white noise: the tracker then keeps the
+            # attitude (and φ2) but does not calibrate the gyros (Schmidt consider).
+            consider = self.gyro_mask if sig_t > self.si.timing_consider_s else None
+            if consider is not None:
+                self.counters[f"st{j}_consider"] += 1
+            used = self._correlated_update(f"st{j}", H, self.r3,
+                                           np.diag(rdiag) + sig_t * sig_t * np.outer(v, v),
+                                           consider)
+        else:
+            used = self._vector_update(f"st{j}", H, self.r3, rdiag, self.si.gate_st_nis)
         bit = Flag.ST1_EDITED if j == 1 else Flag.ST2_EDITED
         self.flags = (self.flags & ~int(bit)) | (0 if used else int(bit))
         return used
@@ -272,13 +428,11 @@ class Engine(EngineState):
             self.d[3:] = np.asarray(self.si.p0_params)
             self._begin_attitude_init()
 
-    listener = None  # callable(t) run after every window close (the stream's output scheduler)
-
     def on_window(self, t: float) -> None:
         """Hook after every window close (10 Hz, deterministic points): mode, flags, convergence."""
         self.update_mode(t)
-        if self.listener is not None:
-            self.listener(t)
+        if self._listener is not None:
+            self._listener(t)
 
 
 def ud_var_block(engine: Engine, group: str) -> np.ndarray:

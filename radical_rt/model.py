@@ -237,3 +237,232 @@ def quat_from_tracker(q_meas, R_st_from_body_nom, phi, use_phi):
     """q_body_from_inertial (4,) implied by a tracker quaternion (inverse of the mounting model)."""
     Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
     return dcm_to_quat((R_st_from_body_nom @ Rphi.T).T @ quat_to_dcm(q_meas))
+
+
+# ---------------------------------------------------------------------------------------------
+# Internal (linear) parametrization used by the engine.
+#
+# The contract's parameters (λ, μ, du, dv) enter the increment model nonlinearly through the
+# normalized axis w̃(du, dv) and the product (1 + λ)·w̃. With x and z rotations only, one direction
+# per gyro (the y component of the scaled axis) is unobservable; in the contract coordinates that
+# unobservable set is a *curved* line, so an EKF linearized at moving estimates gains spurious
+# information along it and drifts (docs/engine.md). The engine therefore estimates, per gyro, the
+# scaled sense axis a_i = (1 + λ̂'_i) w_i − dû'_i v_i − dv̂'_i u_i, which is *linear* in the
+# internal parameters (λ', du', dv'), and μ' = μ/(1 + λ):
+#     y_i = (1 + μ'_i sgn g_i)·a_iᵀθ + b_i dt      (exactly the contract's model)
+# so the increment model is linear in (λ', du', dv') for a given θ and every unobservable set is
+# a straight line. Conversions to and from the contract's parameters are exact
+# (:func:`contract_from_internal`, :func:`internal_from_contract`).
+# ---------------------------------------------------------------------------------------------
+
+
+@kernel
+def refresh_axes(xp, W, U_ax, V_ax, N_ref, A, Minv, Gp, N):
+    """Rebuild the estimated scaled axes A and everything derived from them (internal params).
+
+    xp (5n+3,) internal parameters; W, U_ax, V_ax (3, n) nominal triads; N_ref (n, n−3) previous
+    parity basis (for continuity). Writes A (3, n) with columns a_i = (1+λ'_i) w_i − du'_i v_i −
+    dv'_i u_i, Minv (3, 3) = (A Aᵀ)⁻¹, Gp (3, n) = Minv A, N (n, n−3) orthonormal basis of null(A).
+    Returns 0, or 1 if A Aᵀ is singular.
+    """
+    n = W.shape[1]
+    for i in range(n):
+        sl = 1.0 + xp[n + i]
+        du = xp[3 * n + i]
+        dv = xp[4 * n + i]
+        for r in range(3):
+            A[r, i] = sl * W[r, i] - du * V_ax[r, i] - dv * U_ax[r, i]
+    M = A @ A.T
+    if abs(np.linalg.det(M)) < 1e-12:
+        return 1
+    Minv[:, :] = np.linalg.inv(M)
+    Gp[:, :] = Minv @ A
+    proj = np.eye(n) - A.T @ Gp
+    B = proj @ N_ref
+    for c in range(B.shape[1]):
+        for k in range(c):
+            s = 0.0
+            for r in range(n):
+                s += B[r, c] * B[r, k]
+            for r in range(n):
+                B[r, c] -= s * B[r, k]
+        s = 0.0
+        for r in range(n):
+            s += B[r, c] * B[r, c]
+        s = math.sqrt(s)
+        for r in range(n):
+            B[r, c] /= s
+    N[:, :] = B
+    return 0
+
+
+@kernel
+def correct_increment_lin(y, dt, xp, active, c_out, sgn_out, s_out):
+    """Corrected increments c_i = (y_i − b̂_i dt)/(1 + μ̂'_i sgn) ≈ a_iᵀθ (internal params).
+
+    Writes c_out, sgn_out (sign of y − b̂·dt) and s_out (1 + μ̂'·sgn); zero / one for inactive gyros.
+    """
+    n = y.shape[0]
+    for i in range(n):
+        if not active[i]:
+            c_out[i] = 0.0
+            sgn_out[i] = 0.0
+            s_out[i] = 1.0
+            continue
+        e = y[i] - xp[i] * dt
+        sg = 1.0 if e >= 0.0 else -1.0
+        s = 1.0 + xp[2 * n + i] * sg
+        c_out[i] = e / s
+        sgn_out[i] = sg
+        s_out[i] = s
+
+
+@kernel
+def increment_jacobian_lin(g, sgn, s, dt, theta, W, U_ax, V_ax, Gp, active, F):
+    """F (3, 5n) = ∂theta_hat/∂p̂ in the internal parametrization (b, λ', μ', du', dv').
+
+    theta_hat = Gp c with Gp = (AAᵀ)⁻¹A. g (n,) = Aᵀ theta_hat (the corrected increments without
+    their parity-direction noise, used in the μ' column); sgn, s from
+    :func:`correct_increment_lin`. The λ', du', dv' columns are −Gp[:, i]·(∂a_i/∂p)ᵀθ̂ with the
+    *nominal* constant vectors w_i, −v_i, −u_i. Exact derivative for noise-free data.
+    """
+    n = g.shape[0]
+    F[:, :] = 0.0
+    for i in range(n):
+        if not active[i]:
+            continue
+        wt = W[0, i] * theta[0] + W[1, i] * theta[1] + W[2, i] * theta[2]
+        vt = V_ax[0, i] * theta[0] + V_ax[1, i] * theta[1] + V_ax[2, i] * theta[2]
+        ut = U_ax[0, i] * theta[0] + U_ax[1, i] * theta[1] + U_ax[2, i] * theta[2]
+        for r in range(3):
+            gp = Gp[r, i]
+            F[r, i] = -gp * dt / s[i]
+            F[r, n + i] = -gp * wt
+            F[r, 2 * n + i] = -gp * sgn[i] * g[i] / s[i]
+            F[r, 3 * n + i] = gp * vt
+            F[r, 4 * n + i] = gp * ut
+
+
+@kernel
+def parity_rows_lin(c, g, sgn, s, dt, theta, N, W, U_ax, V_ax, z_acc, H_acc):
+    """Accumulate z = Nᵀc (n−3,) and its rows H = −∂z/∂p̂ (n−3, ≥5n), internal parametrization.
+
+    N (n, n−3) orthonormal basis of null(A); g (n,) = Aᵀθ̂ replaces c in the μ' column (no
+    parity-noise in H). Columns b, λ', μ', du', dv'.
+    """
+    n = c.shape[0]
+    for i in range(n):
+        wt = W[0, i] * theta[0] + W[1, i] * theta[1] + W[2, i] * theta[2]
+        vt = V_ax[0, i] * theta[0] + V_ax[1, i] * theta[1] + V_ax[2, i] * theta[2]
+        ut = U_ax[0, i] * theta[0] + U_ax[1, i] * theta[1] + U_ax[2, i] * theta[2]
+        for r in range(N.shape[1]):
+            p = N[i, r]
+            z_acc[r] += p * c[i]
+            H_acc[r, i] += p * dt / s[i]
+            H_acc[r, n + i] += p * wt
+            H_acc[r, 2 * n + i] += p * sgn[i] * g[i] / s[i]
+            H_acc[r, 3 * n + i] -= p * vt
+            H_acc[r, 4 * n + i] -= p * ut
+
+
+def contract_from_internal(xp, n):
+    """Contract parameters (CONTRACT §1.5, SI) and the Jacobian ∂contract/∂internal.
+
+    xp (5n+3,) internal (b, λ', μ', du', dv', φ2). Per gyro, with a = (1+λ')w − du'v − dv'u:
+    1 + λ = |a| = √((1+λ')² + du'² + dv'²), du = du'/(1+λ'), dv = dv'/(1+λ'), μ = μ'(1+λ).
+    Returns (xp_contract (5n+3,), J (5n+3, 5n+3)).
+    """
+    xp = np.asarray(xp, dtype=float)
+    out = xp.copy()
+    J = np.eye(xp.size)
+    for i in range(n):
+        il, im, iu, iv = n + i, 2 * n + i, 3 * n + i, 4 * n + i
+        sl, mu, du, dv = 1.0 + xp[il], xp[im], xp[iu], xp[iv]
+        na = math.sqrt(sl * sl + du * du + dv * dv)
+        out[il] = na - 1.0
+        out[im] = mu * na
+        out[iu] = du / sl
+        out[iv] = dv / sl
+        J[il, il], J[il, iu], J[il, iv] = sl / na, du / na, dv / na
+        J[im, im] = na
+        J[im, il], J[im, iu], J[im, iv] = mu * sl / na, mu * du / na, mu * dv / na
+        J[iu, iu], J[iu, il] = 1.0 / sl, -du / (sl * sl)
+        J[iv, iv], J[iv, il] = 1.0 / sl, -dv / (sl * sl)
+    return out, J
+
+
+def internal_from_contract(xp_c, n):
+    """Inverse of :func:`contract_from_internal` (exact): contract (b, λ, μ, du, dv, φ2) → internal."""
+    xp_c = np.asarray(xp_c, dtype=float)
+    out = xp_c.copy()
+    for i in range(n):
+        il, im, iu, iv = n + i, 2 * n + i, 3 * n + i, 4 * n + i
+        lam, mu, du, dv = xp_c[il], xp_c[im], xp_c[iu], xp_c[iv]
+        sl = (1.0 + lam) / math.sqrt(1.0 + du * du + dv * dv)
+        out[il] = sl - 1.0
+        out[im] = mu / (1.0 + lam)
+        out[iu] = du * sl
+        out[iv] = dv * sl
+    return out
+
+
+@kernel
+def parity_from_stats(par_y, par_t, xp, A, Gp, N, W, U_ax, V_ax, z_out, H_out, theta_out, Phi_out):
+    """Parity measurement of a sum of samples, recomputed exactly from its sufficient statistics.
+
+    par_y (2, n): per gyro, the sums of the raw increments y [rad] of the samples whose corrected
+    sign was + (row 0) or − (row 1); par_t (2, n): the matching sums of the sample intervals [s].
+    With the *current* internal parameters xp (and A, Gp = (AAᵀ)⁻¹A, N = null basis of A): the
+    corrected sums C_i = Σ± (Y±_i − b̂_i T±_i)/(1 ± μ̂'_i), the parity z = NᵀC (n−3,), the summed
+    body increment Θ = Gp C (3,), the rows H = −∂z/∂p̂ (n−3, ≥5n; columns b, λ', μ', du', dv'; the
+    λ', du', dv' columns use Θ, the μ' column the part of C in the range of Aᵀ) and Phi_out
+    (3, 5n) = ∂Θ/∂p̂ (the sensitivity of the regressor Θ to the parameter errors).
+    Because the statistics are sums of raw data, the measurement can be formed at any later time,
+    linearized about the estimate of that time (see docs/engine.md).
+    """
+    n = par_y.shape[1]
+    cp = np.empty(n)
+    cm = np.empty(n)
+    c = np.empty(n)
+    for i in range(n):
+        mu = xp[2 * n + i]
+        cp[i] = (par_y[0, i] - xp[i] * par_t[0, i]) / (1.0 + mu)
+        cm[i] = (par_y[1, i] - xp[i] * par_t[1, i]) / (1.0 - mu)
+        c[i] = cp[i] + cm[i]
+    for r in range(3):
+        s = 0.0
+        for i in range(n):
+            s += Gp[r, i] * c[i]
+        theta_out[r] = s
+    for j in range(H_out.shape[0]):
+        for col in range(H_out.shape[1]):
+            H_out[j, col] = 0.0
+    for i in range(n):
+        mu = xp[2 * n + i]
+        tb = par_t[0, i] / (1.0 + mu) + par_t[1, i] / (1.0 - mu)
+        smu = cp[i] / (1.0 + mu) - cm[i] / (1.0 - mu)  # Σ sgn·c/(1 + μ sgn)
+        g = A[0, i] * theta_out[0] + A[1, i] * theta_out[1] + A[2, i] * theta_out[2]
+        if c[i] != 0.0:
+            smu *= g / c[i]  # the same, without the parity-direction noise of c
+        wt = W[0, i] * theta_out[0] + W[1, i] * theta_out[1] + W[2, i] * theta_out[2]
+        vt = V_ax[0, i] * theta_out[0] + V_ax[1, i] * theta_out[1] + V_ax[2, i] * theta_out[2]
+        ut = U_ax[0, i] * theta_out[0] + U_ax[1, i] * theta_out[1] + U_ax[2, i] * theta_out[2]
+        for r in range(3):
+            gp = Gp[r, i]
+            Phi_out[r, i] = -gp * tb
+            Phi_out[r, n + i] = -gp * wt
+            Phi_out[r, 2 * n + i] = -gp * smu
+            Phi_out[r, 3 * n + i] = gp * vt
+            Phi_out[r, 4 * n + i] = gp * ut
+        for j in range(N.shape[1]):
+            p = N[i, j]
+            H_out[j, i] = p * tb
+            H_out[j, n + i] = p * wt
+            H_out[j, 2 * n + i] = p * smu
+            H_out[j, 3 * n + i] = -p * vt
+            H_out[j, 4 * n + i] = -p * ut
+    for j in range(N.shape[1]):
+        s = 0.0
+        for i in range(n):
+            s += N[i, j] * c[i]
+        z_out[j] = s

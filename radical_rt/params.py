@@ -47,7 +47,15 @@ class Params:
     arw_deg_sqrt_hr: float = 1.5e-4  # angle random walk
     quant_arcsec: float = 0.01  # delta-angle quantum (parity window noise q²/6)
     gyro_gap_s: float = 0.5  # a gyro interval longer than this is a gap → GYRO_GAP + warm start
-    parity_window: int = 10  # gyro samples summed per parity update (≤ one tracker period)
+    parity_window: int = 100  # gyro samples summed per parity update (may span tracker epochs)
+    prop_window: int = 10  # gyro samples per time-update window (closed early at tracker epochs)
+    # Tracker updates do not calibrate the gyros (Schmidt consider) while the epoch uncertainty of
+    # the gyro time line, times the body rate, exceeds this fraction of the tracker noise variance.
+    timing_consider_s: float = 1e-4
+    parity_lag_s: float = 10.0  # a closed parity sum is processed this much later (docs/engine.md)
+    # Errors-in-variables control: the summed body increment enters the λ, μ, du, dv columns only
+    # in proportion to its significance at this many sigma (docs/engine.md).
+    regressor_k_sigma: float = 3.0
     # Process noise (random walks). Paper: 0.001 ppm/√s (λ, μ), 0.001″/√s (δu, δv), 0.002″/√s (φ2).
     # Bias: not given by the paper; 2e-6 deg/hr/√s ≈ 1e-11 rad/s/√s (a slow rate random walk).
     q_b_deg_hr_sqrt_s: float = 2.0e-6
@@ -114,8 +122,8 @@ def _check_value(name: str, value: Any, default: Any, n_gyro: int) -> Any:
         if int(value) != value:
             raise ParamError(f"{name}: expected an integer, got {value!r}")
         value = int(value)
-    if name == "parity_window" and value < 1:
-        raise ParamError("parity_window: must be ≥ 1")
+    if name in ("parity_window", "prop_window") and value < 1:
+        raise ParamError(f"{name}: must be ≥ 1")
     return value
 
 
@@ -183,6 +191,10 @@ class SIParams:
     quant_var: float  # rad² (parity window noise q²/6)
     gyro_gap_s: float
     parity_window: int
+    prop_window: int
+    regressor_k_sigma: float
+    parity_lag_s: float
+    timing_consider_s: float
     q_params: tuple[float, ...]  # per parameter state, variance growth per second (SI²/s)
     p0_params: tuple[float, ...]  # initial variances of the parameter states (SI²)
     att_init_scale: float
@@ -214,7 +226,7 @@ def to_si(p: Params, n_gyro: int = 4) -> SIParams:
                   p.st_sigma_bore_arcsec * ARCSEC),
         st_ref_stars=p.st_ref_stars, st_min_stars=p.st_min_stars, latency_st_s=p.latency_st_s,
         st_stale_s=p.st_stale_s, arw_var_per_s=arw**2, quant_var=(p.quant_arcsec * ARCSEC) ** 2 / 6.0,
-        gyro_gap_s=p.gyro_gap_s, parity_window=p.parity_window, q_params=tuple(q),
+        gyro_gap_s=p.gyro_gap_s, parity_window=p.parity_window, prop_window=p.prop_window, regressor_k_sigma=p.regressor_k_sigma, parity_lag_s=p.parity_lag_s, timing_consider_s=p.timing_consider_s, q_params=tuple(q),
         p0_params=tuple(k * x * x for x in L), att_init_scale=p.att_init_scale, bump_sigma=bump,
         bump_mode=p.bump_mode, gate_st_nis=p.gate_st_nis, gate_parity_nis=p.gate_parity_nis,
         edit_enabled=p.edit_enabled, conv_sigma=tuple(conv))

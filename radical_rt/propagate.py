@@ -1,11 +1,20 @@
 """Per-sample gyro propagation and window accumulation (the 100 Hz hot loop, one Numba call).
 
-Between two window closes (≤ ``window`` samples, or a tracker epoch) the engine accumulates, for the
-structured UD time update (notes §7, §11.5), the attitude transition ``Phi_aa`` (3, 3), the
-attitude-parameter coupling ``Phi_ap`` (3, 5n+3; the φ2 columns stay zero), the attitude process
-noise ``Q_aa`` (3, 3), and the parity window sum ``z_par`` (n−3,) with its rows ``H_par``
-(n−3, 5n+3). ``acc_i`` (int64[2]) holds (samples in window, parity samples in window) and ``acc_f``
-(float64[2]) holds (window duration [s], variance of the parity noise [rad²] accumulated).
+Between two time-update window closes (≤ ``window`` samples, or a tracker epoch) the engine
+accumulates, for the structured UD time update (notes §7, §11.5), the attitude transition
+``Phi_aa`` (3, 3), the attitude-parameter coupling ``Phi_ap`` (3, 5n+3; the φ2 columns stay zero),
+the attitude process noise ``Q_aa`` (3, 3) and ``th_acc`` (3,) the sum of the estimated body
+increments θ̂ (the regressor of the λ, μ, du, dv columns, see
+:meth:`radical_rt.filter.Engine._regressor_reliability`). Independently, over a longer parity sum (it
+may span several time-update windows and tracker epochs; the engine closes it), it accumulates the
+sufficient statistics of the parity measurement: ``par_y`` (2, n) the raw increments and ``par_t``
+(2, n) the sample intervals, split by the sign of the corrected increment
+(:func:`radical_rt.model.parity_from_stats`).
+``acc_i`` (int64[4]) holds (samples in the time-update window, parity samples, parity segments —
+contiguous runs of parity samples, each adds one quantization term to the noise because the
+quantization of the accumulated angle telescopes only over contiguous samples —, 1 if the previous
+sample entered the parity sum) and ``acc_f`` (float64[3]) holds (time-update window duration [s],
+ARW variance of the parity sum [rad²], parity-sum duration [s]).
 """
 
 from __future__ import annotations
@@ -15,10 +24,9 @@ import numpy as np
 from ._jit import kernel
 from .model import (
     apply_body_rotation,
-    correct_increment,
-    increment_jacobian,
+    correct_increment_lin,
+    increment_jacobian_lin,
     masked_pinv,
-    parity_rows,
 )
 from .rotation import rotvec_to_dcm
 
@@ -28,13 +36,15 @@ PROP_UNDETERMINED = 2  # some samples had fewer than 3 usable gyros (not propaga
 
 
 @kernel
-def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q, Wt, dWdu, dWdv,
-                     Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, z_par, H_par, acc_i, acc_f, window,
+def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q, A, W, U_ax,
+                     V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f, th_acc, window,
                      arw_var, omega):
     """Propagate samples i0.. of a gyro batch until the window holds ``window`` samples.
 
     dtheta (m, n) [rad], dt (m,) [s], status (m,) int bits (gyro invalid), bridged (m,) bool,
-    var_extra (m,) [rad²]; excluded (n,) bool (commanded exclusions); xp parameters; q (4,)
+    var_extra (m,) [rad²]; excluded (n,) bool (commanded exclusions); xp internal parameters
+    (:mod:`radical_rt.model`, linear parametrization); A (3, n) estimated scaled axes, W, U_ax, V_ax
+    (3, n) nominal triads, Minv, Gp, N from :func:`model.refresh_axes`; q (4,)
     q_body_from_inertial, propagated in place; omega (3,) [rad/s] receives the last body rate.
     Returns (index of the next unprocessed sample, flags PROP_*).
     """
@@ -60,32 +70,46 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
         G, Mi = Gp, Minv
         if n_act < n:
             flags |= PROP_MASKED
-            if masked_pinv(Wt, active, Mm, Gm) < 0:
+            if masked_pinv(A, active, Mm, Gm) < 0:
                 flags |= PROP_UNDETERMINED
                 k += 1
                 continue
             G, Mi = Gm, Mm
         h = dt[k]
-        correct_increment(dtheta[k], h, xp, active, c, sg, s)
+        correct_increment_lin(dtheta[k], h, xp, active, c, sg, s)
         for r in range(3):
             th[r] = G[r, 0] * c[0]
             for i in range(1, n):
                 th[r] += G[r, i] * c[i]
         for i in range(n):
-            gh[i] = (Wt[0, i] * th[0] + Wt[1, i] * th[1] + Wt[2, i] * th[2]) if active[i] else 0.0
-        increment_jacobian(gh, sg, s, h, th, Wt, dWdu, dWdv, Mi, G, active, F)
+            gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
+        increment_jacobian_lin(gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
         Rt = rotvec_to_dcm(th).T
         Phi_aa[:, :] = Rt @ Phi_aa
-        Phi_ap[:, :5 * n] = Rt @ Phi_ap[:, :5 * n] + F
+        for j in range(5 * n):
+            x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
+            for r in range(3):
+                Phi_ap[r, j] = Rt[r, 0] * x0 + Rt[r, 1] * x1 + Rt[r, 2] * x2 + F[r, j]
         Q_aa[:, :] = Rt @ Q_aa @ Rt.T + (arw_var * h) * Mi
         for r in range(3):
             Q_aa[r, r] += var_extra[k]
             omega[r] = th[r] / h
         apply_body_rotation(q, th, work4, dq)
         if n_act == n and not bridged[k] and N.shape[1] > 0:
-            parity_rows(c, gh, sg, s, h, th, N, dWdu, dWdv, z_par, H_par)
+            for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
+                row = 0 if sg[i] > 0.0 else 1
+                par_y[row, i] += dtheta[k, i]
+                par_t[row, i] += h
+            if acc_i[3] == 0:
+                acc_i[2] += 1  # a new contiguous run: one more quantization endpoint pair
             acc_i[1] += 1
+            acc_i[3] = 1
             acc_f[1] += arw_var * h
+            acc_f[2] += h
+        else:
+            acc_i[3] = 0
+        for r in range(3):
+            th_acc[r] += th[r]
         acc_i[0] += 1
         acc_f[0] += h
         k += 1

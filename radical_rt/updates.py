@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
-from .ud import bierman_update
+from .ud import agee_turner, bierman_update
 
 UPDATE_ACCEPTED = 0
 UPDATE_EDITED = 1
@@ -56,4 +56,57 @@ def gated_update(U, d, dx, H, z, rdiag, gate, edit_enabled, F, S, innov, sig, f,
             return status, nis, UPDATE_ACCEPTED
         for j in range(n):
             dx[j] += k[j] * res
+    return 0, nis, UPDATE_ACCEPTED
+
+
+@kernel
+def gated_update_consider(U, d, dx, H, z, rdiag, gate, edit_enabled, consider, F, S, innov, sig, f,
+                          v, k, a):
+    """:func:`gated_update` with some states treated as Schmidt *consider* states.
+
+    consider (n,) bool: those states are not corrected and their covariance block is kept at its
+    prior value, while the other states and the cross-covariances get the ordinary (optimal for the
+    solve-for states) update. Per scalar row: the ordinary Bierman update, then the consider
+    block's share K_c α K_cᵀ is added back by an Agee-Turner rank-one update with a = K masked to
+    the consider states (notes §11.8; exact). a (n,) work. Same returns as :func:`gated_update`.
+    """
+    m, n = H.shape
+    for r in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[r, j] * dx[j]
+        innov[r] = z[r] - s
+        for j in range(n):
+            acc = H[r, j]
+            for i in range(j):
+                acc += U[i, j] * H[r, i]
+            F[r, j] = acc
+    for r in range(m):
+        for b in range(m):
+            acc = rdiag[r] if r == b else 0.0
+            for j in range(n):
+                acc += F[r, j] * d[j] * F[b, j]
+            S[r, b] = acc
+        sig[r] = np.sqrt(S[r, r]) if S[r, r] > 0 else 0.0
+    nis = innov @ np.linalg.solve(S, innov)
+    if edit_enabled and not (nis <= gate):
+        return 0, nis, UPDATE_EDITED
+    kc = np.zeros(n)
+    for r in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[r, j] * dx[j]
+        res = z[r] - s
+        status, alpha = bierman_update(U, d, H[r], rdiag[r], k, f, v)
+        if status != 0:
+            return status, nis, UPDATE_ACCEPTED
+        for j in range(n):
+            if consider[j]:
+                kc[j] = k[j]
+            else:
+                kc[j] = 0.0
+                dx[j] += k[j] * res
+        status = agee_turner(U, d, alpha, kc, a)
+        if status != 0:
+            return status, nis, UPDATE_ACCEPTED
     return 0, nis, UPDATE_ACCEPTED
