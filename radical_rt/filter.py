@@ -229,6 +229,13 @@ class Engine(EngineState):
         while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
             self._parity_update(*self.parity_queue.popleft()[1:])
 
+    def flush_parity(self) -> None:
+        """End of a stream: process the parity sums still waiting for their lag, then apply."""
+        self._queue_parity()
+        while self.parity_queue:
+            self._parity_update(*self.parity_queue.popleft()[1:])
+        self._apply_correction()
+
     def _queue_parity(self) -> None:
         if self.acc_i[1] > 0 and not self.excluded.any():
             noise = self.acc_f[1] + self.acc_i[2] * self.si.quant_var
@@ -303,21 +310,7 @@ class Engine(EngineState):
 
     timing_sigma_source = None  # callable() → s, e.g. lambda: clock.tag_error_sigma_s
 
-    @property
-    def listener(self):
-        """Callable(t) run after every window close (the stream's output scheduler)."""
-        return self._listener
-
-    @listener.setter
-    def listener(self, fn) -> None:
-        # The stream processor installs its bound method here; it owns the SIRU clock, whose
-        # reconstruction uncertainty becomes the timing source unless one was set explicitly.
-        self._listener = fn
-        clock = getattr(getattr(fn, "__self__", None), "clock", None)
-        if self.timing_sigma_source is None and hasattr(clock, "tag_error_sigma_s"):
-            self.timing_sigma_source = lambda: clock.tag_error_sigma_s
-
-    _listener = None
+    listener = None  # callable(t) run after every window close (the stream's output scheduler)
 
     def _apply_correction(self) -> None:
         """Fold dx into the attitude quaternion and the parameters; dx ← 0."""
@@ -431,8 +424,8 @@ class Engine(EngineState):
     def on_window(self, t: float) -> None:
         """Hook after every window close (10 Hz, deterministic points): mode, flags, convergence."""
         self.update_mode(t)
-        if self._listener is not None:
-            self._listener(t)
+        if self.listener is not None:
+            self.listener(t)
 
 
 def ud_var_block(engine: Engine, group: str) -> np.ndarray:

@@ -46,6 +46,8 @@ class StreamProcessor:
         self._last_flags = None
         self._begin_stream()
         engine.listener = self._on_window
+        # the clock's reconstruction uncertainty enters the tracker noise as (ω̂·σ_t)²
+        engine.timing_sigma_source = lambda: self.clock.tag_error_sigma_s
 
     # ---------------------------------------------------------------- input side
     def _begin_stream(self) -> None:
@@ -138,6 +140,8 @@ class StreamProcessor:
         if len(out.t):
             self._gyro.append(out)
         self._release(math.inf)
+        if self.engine.att_valid:
+            self.engine.flush_parity()
         if next_start is not None:
             self.clock.reset()
             if next_start == "cold":
