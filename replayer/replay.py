@@ -454,6 +454,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wait-subscribers", nargs="?", type=_wait_arg, const=DEFAULT_WAIT_S,
                    default=None, metavar="TIMEOUT", help="wait (default 10 s) for subscribers on "
                    "every published key (e.g. a recorder), without requiring a node")
+    p.add_argument("--linger", type=float, default=2.0, metavar="S",
+                   help="keep the session open S seconds after the last message so queued "
+                        "messages are delivered (default 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
 
@@ -554,6 +557,9 @@ def run(args: argparse.Namespace) -> int:
                 _err(str(e))
                 return 2
         finally:
+            # Zenoh has no flush: keep the session open so that messages still queued in this
+            # process's transmit queue reach the subscribers before the links close.
+            time.sleep(max(args.linger, 0.0))
             session.close()
     finally:
         for sig, h in old.items():
