@@ -19,12 +19,9 @@ UPDATE_EDITED = 1
 
 
 @kernel
-def gated_update(U, d, dx, H, z, rdiag, gate, edit_enabled, F, S, innov, sig, f, v, k):
-    """Apply rows H (m, n) with measurements z (m,) and noise variances rdiag (m,) to (U, d, dx).
-
-    Writes innov (m,) = z − H dx (before the update) and sig (m,) = sqrt(diag S).
-    Returns (kernel status, NIS, UPDATE_ACCEPTED or UPDATE_EDITED).
-    """
+def innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig):
+    """Innovations innov = z − H dx, S = H P Hᵀ + R from the UD factors (F = Uᵀhᵀ rows; P never
+    formed), sig = sqrt(diag S); returns the NIS νᵀS⁻¹ν. Shapes as in :func:`gated_update`."""
     m, n = H.shape
     for a in range(m):
         s = 0.0
@@ -43,7 +40,18 @@ def gated_update(U, d, dx, H, z, rdiag, gate, edit_enabled, F, S, innov, sig, f,
                 acc += F[a, j] * d[j] * F[b, j]
             S[a, b] = acc
         sig[a] = np.sqrt(S[a, a]) if S[a, a] > 0 else 0.0
-    nis = innov @ np.linalg.solve(S, innov)
+    return innov @ np.linalg.solve(S, innov)
+
+
+@kernel
+def gated_update(U, d, dx, H, z, rdiag, gate, edit_enabled, F, S, innov, sig, f, v, k):
+    """Apply rows H (m, n) with measurements z (m,) and noise variances rdiag (m,) to (U, d, dx).
+
+    Writes innov (m,) = z − H dx (before the update) and sig (m,) = sqrt(diag S).
+    Returns (kernel status, NIS, UPDATE_ACCEPTED or UPDATE_EDITED).
+    """
+    m, n = H.shape
+    nis = innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig)
     if edit_enabled and not (nis <= gate):
         return 0, nis, UPDATE_EDITED
     for a in range(m):
@@ -71,24 +79,7 @@ def gated_update_consider(U, d, dx, H, z, rdiag, gate, edit_enabled, consider, F
     the consider states (notes §11.8; exact). a (n,) work. Same returns as :func:`gated_update`.
     """
     m, n = H.shape
-    for r in range(m):
-        s = 0.0
-        for j in range(n):
-            s += H[r, j] * dx[j]
-        innov[r] = z[r] - s
-        for j in range(n):
-            acc = H[r, j]
-            for i in range(j):
-                acc += U[i, j] * H[r, i]
-            F[r, j] = acc
-    for r in range(m):
-        for b in range(m):
-            acc = rdiag[r] if r == b else 0.0
-            for j in range(n):
-                acc += F[r, j] * d[j] * F[b, j]
-            S[r, b] = acc
-        sig[r] = np.sqrt(S[r, r]) if S[r, r] > 0 else 0.0
-    nis = innov @ np.linalg.solve(S, innov)
+    nis = innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig)
     if edit_enabled and not (nis <= gate):
         return 0, nis, UPDATE_EDITED
     kc = np.zeros(n)
