@@ -210,13 +210,30 @@ def test_fake_bus_small_chunks_paced(archives, tmp_path):
     assert res["pacing"]["p99_s"] < 0.005, res["pacing"]
 
 
+class _StoppingLog(list):
+    """A publish log that sets ``stop`` once ``after`` messages went out (no wall-clock timer)."""
+
+    def __init__(self, stop: threading.Event, after: int) -> None:
+        super().__init__()
+        self.stop, self.after = stop, after
+
+    def append(self, item) -> None:
+        super().append(item)
+        if len(self) >= self.after:
+            self.stop.set()
+
+
 def test_fake_bus_stop_event(archives):
+    """Setting the stop event mid-stream ends a paced replay promptly, counting what went out."""
     s, stop = FakeSession(), threading.Event()
-    threading.Timer(0.3, stop.set).start()
-    t0 = time.monotonic()
+    s.log = _StoppingLog(stop, after=20)
+    t_stop = [0.0]
+    threading.Thread(target=lambda: (stop.wait(30), t_stop.__setitem__(0, time.monotonic())),
+                     daemon=True).start()
     res = replay(archives["a"], VEH, s, rate=1.0, stop_event=stop)
-    assert time.monotonic() - t0 < 1.0 and res["stopped"]
-    assert 0 < res["messages"] < 100
+    assert res["stopped"] and 20 <= res["messages"] <= 21, res["messages"]
+    assert res["messages"] == len(s.log) < len(_order(archives["a"]))
+    assert time.monotonic() - t_stop[0] < 1.0  # prompt, with a wide margin
 
 
 def _not_mcap(tmp_path: Path) -> Path:
