@@ -106,7 +106,8 @@ def make_summary(sp: StreamProcessor) -> dict[str, Any]:
             "counters": {k: v for k, v in sp.counters().items() if k in (
                 "siru_samples", "siru_repeated", "siru_missing", "st1_used", "st1_edited",
                 "st2_used", "st2_edited", "input_rejected")},
-            "converged": e.mode == "converged", "mode": e.mode, "flags": sp.flag_names()}
+            "converged": e.mode == "converged", "mode": e.mode, "flags": sp.flag_names(),
+            "latency_st": e.latency_estimate()}  # extension: tracker latency estimate, s
 
 
 def summary_table(summary: dict[str, Any]) -> str:
@@ -147,4 +148,7 @@ def run(args: argparse.Namespace) -> int:
               f"{c['siru_samples']} (repeated {c['siru_repeated']}, missing {c['siru_missing']}); "
               f"ST1 used {c['st1_used']} edited {c['st1_edited']}; ST2 used {c['st2_used']} edited "
               f"{c['st2_edited']}; rejected {c['input_rejected']}")
+        lat = summary["latency_st"]
+        print(f"tracker latency {1e3 * lat['estimate_s']:.2f} ± {1e3 * lat['sigma_s']:.2f} ms "
+              f"(configured {1e3 * lat['configured_s']:.2f} ms)")
     return 0

@@ -47,7 +47,7 @@ class Engine(EngineState):
 
     def __init__(self, table: ParamTable | None = None, geometry: Geometry | None = None) -> None:
         geometry = geometry or Geometry()
-        super().__init__(StateLayout(geometry.n_gyro), geometry)
+        super().__init__(StateLayout(geometry.n_gyro, latency=True), geometry)
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
         self.params_changed()
         self.cold_start()
@@ -344,6 +344,19 @@ class Engine(EngineState):
         self.on_window(t_epoch)
         return used
 
+    def latency_residual(self) -> float:
+        """Residual tracker latency estimate τ̂ [s] (true − configured)."""
+        return float(self.xp[self.layout["lat"].start - 3])
+
+    def latency_estimate(self) -> dict[str, float]:
+        """Tracker latency: configured, residual τ̂ and total estimate, with the 1σ of τ [s]."""
+        k = self.layout["lat"].start
+        ud.variances(self.U, self.d, self.ws.var)
+        tau = self.latency_residual()
+        return {"configured_s": float(self.si.latency_st_s), "residual_s": tau,
+                "estimate_s": float(self.si.latency_st_s) + tau,
+                "sigma_s": float(math.sqrt(max(self.ws.var[k], 0.0)))}
+
     def _tracker_sigma(self, n_stars: int) -> np.ndarray:
         return np.asarray(self.si.st_sigma) * math.sqrt(self.si.st_ref_stars / max(n_stars, 1))
 
@@ -371,10 +384,14 @@ class Engine(EngineState):
         self.counters["att_inits"] += 1
         return True
 
-    def _tracker_update(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
+    def _tracker_rows(self, j: int, t_epoch: float, q_meas) -> tuple[np.ndarray, np.ndarray]:
+        """Residual of tracker j at t_epoch (configured-latency epoch on the gyro time line) into
+        self.r3 (tracker axes, rad) and its rows H (3, ns); returns (H, R_st_from_body_nominal)."""
         R_nom, use_phi = self._mounting(j)
         q_epoch = self.q.copy()
-        tau = t_epoch - self.t  # extrapolate the attitude from the last sample to the epoch
+        # The measurement refers to t_epoch − τ̂ (τ: residual latency state). Extrapolate the
+        # attitude from the last sample to that time with the body rate.
+        tau = t_epoch - self.latency_residual() - self.t
         if tau != 0.0:
             apply_body_rotation(q_epoch, self.omega * tau, np.empty(4), np.empty(4))
         phi = self.xp[_psl(self.layout, "phi2")]
@@ -384,6 +401,13 @@ class Engine(EngineState):
         H[:, :] = 0.0
         H[:, :3] = self.H_att
         H[:, self.layout["phi2"]] = self.H_phi
+        # A latency error δτ puts the measured attitude at the epoch − δτ: an attitude error
+        # δθ = −ω̂ δτ (body), so ∂h/∂τ = H_att·(−ω̂) (finite-difference test in test_latency.py).
+        H[:, self.layout["lat"].start] = -(self.H_att @ self.omega)
+        return H, R_nom
+
+    def _tracker_update(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
+        H, R_nom = self._tracker_rows(j, t_epoch, q_meas)
         rdiag = self._tracker_sigma(n_stars) ** 2
         v = R_nom @ self.omega  # attitude error per second of epoch error, tracker axes [rad/s]
         sig_t = self.timing_sigma()

@@ -42,6 +42,10 @@ class Params:
     st_ref_stars: float = 9.0
     st_min_stars: int = 3
     latency_st_s: float = 0.115  # tracker epoch = t_bus − latency (paper: 0.11 s shift + 5 ms)
+    # Residual latency state τ (true − configured latency, s; docs/engine.md §5): prior 1σ and
+    # random-walk density. 0 for both freezes τ at 0 (the configured latency is then trusted).
+    latency_sigma0_s: float = 0.03
+    q_latency_s_sqrt_s: float = 1.0e-6
     st_stale_s: float = 1.0  # no valid sample for this long → STj_STALE
     # Gyros.
     arw_deg_sqrt_hr: float = 1.5e-4  # angle random walk
@@ -195,15 +199,15 @@ class SIParams:
     regressor_k_sigma: float
     parity_lag_s: float
     timing_consider_s: float
-    q_params: tuple[float, ...]  # per parameter state, variance growth per second (SI²/s)
-    p0_params: tuple[float, ...]  # initial variances of the parameter states (SI²)
+    q_params: tuple[float, ...]  # per parameter state incl. τ, variance growth per second (SI²/s)
+    p0_params: tuple[float, ...]  # initial variances of the parameter states incl. τ (SI²)
     att_init_scale: float
     bump_sigma: dict[str, tuple[float, ...]]  # SI 1σ per group
     bump_mode: str
     gate_st_nis: float
     gate_parity_nis: float
     edit_enabled: bool
-    conv_sigma: tuple[float, ...]  # per parameter state, SI
+    conv_sigma: tuple[float, ...]  # per parameter state incl. τ (inf: not tested), SI
 
 
 def to_si(p: Params, n_gyro: int = 4) -> SIParams:
@@ -211,13 +215,15 @@ def to_si(p: Params, n_gyro: int = 4) -> SIParams:
     n = n_gyro
     qb, ql, qm = p.q_b_deg_hr_sqrt_s * DEG_PER_HR, p.q_lam_ppm_sqrt_s * PPM, p.q_mu_ppm_sqrt_s * PPM
     qa, qp = p.q_misalign_arcsec_sqrt_s * ARCSEC, p.q_phi2_arcsec_sqrt_s * ARCSEC
-    q = [qb**2] * n + [ql**2] * n + [qm**2] * n + [qa**2] * (2 * n) + [qp**2] * 3
+    q = ([qb**2] * n + [ql**2] * n + [qm**2] * n + [qa**2] * (2 * n) + [qp**2] * 3
+         + [p.q_latency_s_sqrt_s**2])
     k = INIT_VAR_RULES[p.init_var_rule]
     L = ([p.L_b_deg_hr * DEG_PER_HR] * n + [p.L_lam_ppm * PPM] * n + [p.L_mu_ppm * PPM] * n
          + [p.L_du_arcsec * ARCSEC] * n + [p.L_dv_arcsec * ARCSEC] * n + [p.L_phi2_arcsec * ARCSEC] * 3)
     conv = ([p.conv_b_deg_hr * DEG_PER_HR] * n + [p.conv_lam_ppm * PPM] * n + [p.conv_mu_ppm * PPM] * n
             + [p.conv_misalign_arcsec * ARCSEC] * (2 * n)
-            + [p.conv_phi2_arcsec * ARCSEC] * 2 + [p.conv_phi2_bore_arcsec * ARCSEC])
+            + [p.conv_phi2_arcsec * ARCSEC] * 2 + [p.conv_phi2_bore_arcsec * ARCSEC]
+            + [math.inf])  # τ: observable only while turning, not part of the convergence test
     unit = {"b": DEG_PER_HR, "lam": PPM, "mu": PPM, "du": ARCSEC, "dv": ARCSEC, "phi2": ARCSEC}
     bump = {g: tuple(v * unit[g] for v in getattr(p, name)) for g, name in GROUP_BUMP.items()}
     arw = p.arw_deg_sqrt_hr * DEG / 60.0  # deg/√hr → rad/√s
@@ -227,6 +233,6 @@ def to_si(p: Params, n_gyro: int = 4) -> SIParams:
         st_ref_stars=p.st_ref_stars, st_min_stars=p.st_min_stars, latency_st_s=p.latency_st_s,
         st_stale_s=p.st_stale_s, arw_var_per_s=arw**2, quant_var=(p.quant_arcsec * ARCSEC) ** 2 / 6.0,
         gyro_gap_s=p.gyro_gap_s, parity_window=p.parity_window, prop_window=p.prop_window, regressor_k_sigma=p.regressor_k_sigma, parity_lag_s=p.parity_lag_s, timing_consider_s=p.timing_consider_s, q_params=tuple(q),
-        p0_params=tuple(k * x * x for x in L), att_init_scale=p.att_init_scale, bump_sigma=bump,
+        p0_params=tuple(k * x * x for x in L) + (p.latency_sigma0_s**2,), att_init_scale=p.att_init_scale, bump_sigma=bump,
         bump_mode=p.bump_mode, gate_st_nis=p.gate_st_nis, gate_parity_nis=p.gate_parity_nis,
         edit_enabled=p.edit_enabled, conv_sigma=tuple(conv))

@@ -1,7 +1,9 @@
 """The error-state layout, declared once: named blocks → slices, attitude first.
 
 Order (CONTRACT, notes §3.1): ``att`` 3 (rad, body), ``b`` n (rad/s), ``lam`` n, ``mu`` n,
-``du`` n (rad), ``dv`` n (rad), ``phi2`` 3 (rad, body). With n = 4 gyros, N_STATES = 26.
+``du`` n (rad), ``dv`` n (rad), ``phi2`` 3 (rad, body). With n = 4 gyros, N_STATES = 26 (the
+contract's states). The engine appends one extension state, ``lat`` 1 (s): the residual tracker
+latency (true − configured), see docs/engine.md §5 — ``StateLayout(n, latency=True)``.
 Attitude first means the trailing parameter block's covariance is stored on its own in the UD
 factors, so warm start and the structured time update are cheap (notes §11.5–11.6).
 Code writes ``x[B.slice]`` (or ``x[LAYOUT['b']]``), never literal index ranges.
@@ -37,11 +39,14 @@ class Block:
 class StateLayout:
     """Ordered state blocks for n gyros; iterable, indexable by name."""
 
-    def __init__(self, n_gyro: int = 4) -> None:
+    def __init__(self, n_gyro: int = 4, latency: bool = False) -> None:
         if n_gyro < 4:
             raise ValueError(f"need at least 4 gyros, got {n_gyro}")
         self.n_gyro = n_gyro
+        self.latency = latency
         sizes = [("att", 3)] + [(g, n_gyro) for g in GYRO_GROUPS] + [("phi2", 3)]
+        if latency:
+            sizes.append(("lat", 1))
         blocks, start = [], 0
         for name, size in sizes:
             blocks.append(Block(name, start, size))
@@ -49,6 +54,9 @@ class StateLayout:
         self.blocks: tuple[Block, ...] = tuple(blocks)
         self.n_states = start
         self._by_name = {b.name: b for b in self.blocks}
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._by_name
 
     def __getitem__(self, name: str) -> slice:
         return self._by_name[name].slice

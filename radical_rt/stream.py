@@ -208,6 +208,7 @@ class StreamProcessor:
                 "residuals": e.residual_stats(), "counters": self.counters(),
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
                 "clock": self.clock.telemetry(), "temps": dict(self.temps),
+                "latency": e.latency_estimate(),
                 "ud": {"d_min": float(np.min(e.d)), "d_max": float(np.max(e.d))}}
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:

@@ -22,7 +22,7 @@ from typing import Any
 
 SMALL = ["seq", "t", "q_body_from_inertial", "flags", "mode"]
 MEDIUM = SMALL + ["omega_body", "est"]
-LARGE = MEDIUM + ["sigma", "att_sigma", "residuals", "clock", "counters"]
+LARGE = MEDIUM + ["sigma", "att_sigma", "residuals", "clock", "counters", "latency"]
 
 #: field → (description with units, getter(source) → value). source provides engine/stream state.
 CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
@@ -39,6 +39,8 @@ CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
                   lambda s: s.engine.residual_stats()),
     "clock": ("SIRU clock reconstruction state", lambda s: s.clock.telemetry()),
     "counters": ("engine and input counters", lambda s: s.counters()),
+    "latency": ("tracker latency: configured_s, residual_s (estimated true − configured), "
+                "estimate_s, sigma_s [s]", lambda s: s.engine.latency_estimate()),
     "excluded": ("excluded gyro indices", lambda s: [int(i) for i, e in enumerate(s.engine.excluded) if e]),
     "flag_names": ("names of the flags set", lambda s: s.flag_names()),
 }

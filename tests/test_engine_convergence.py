@@ -15,8 +15,9 @@ Checks (theory-based bounds, no tuning to the seed):
   them beyond 3σ. With 23 Gaussian errors a 3σ bound on every one fails in ≈ 6 % of seeds for a
   perfectly consistent filter (23 × 0.27 %), so 3σ is not a test of the filter; 4σ fails in
   0.15 %, and "≥ 2 beyond 3σ" in ≈ 0.2 %;
-* the parameter NEES (internal, linear coordinates, where the filter's Gaussian is meaningful)
-  below the 99.9 % point of χ²(23) = 49.7;
+* the parameter NEES (internal, linear coordinates, where the filter's Gaussian is meaningful;
+  the 23 calibration states and the residual tracker latency τ) below the 99.9 % point of
+  χ²(24) = 51.2;
 * the mean NIS of the tracker (3 rows) and parity (1 row) updates after the clock locks inside
   the 99.9 % two-sided bound of the mean of M χ² variables: k ± 3.29·√(2k/M);
 * edits: at most the false-alarm rate of the gates allows (χ²(3) > 30: 1.4e-6 per frame;
@@ -39,7 +40,7 @@ from replayer.synth import synthesize
 MOVES = [("x", 10.0), ("x", -20.0), ("x", 10.0), ("z", 10.0), ("z", -20.0), ("z", 10.0),
          ("y", 30.0), ("y", -60.0), ("y", 30.0)]
 Z999 = 3.2905  # two-sided 99.9 % normal quantile
-CHI2_23_999 = 49.728
+CHI2_24_999 = 51.179
 
 
 def scenario(truth: str) -> str:
@@ -99,11 +100,14 @@ def test_parameter_nees_is_consistent(result):
     sp, _, truth = result
     e = sp.engine
     x_true = internal_from_contract(np.concatenate([truth[g] for g in PARAM_GROUPS]), e.n_gyro)
+    tau_true = truth["latency_st"] - e.si.latency_st_s
+    x_true = np.append(x_true, tau_true)
     P = np.empty((e.ns, e.ns))
     ud.ud_to_cov(e.U, e.d, P)
     err = e.xp - x_true
+    assert err.size == 24
     nees = float(err @ np.linalg.solve(P[3:, 3:], err))
-    assert nees < CHI2_23_999, nees
+    assert nees < CHI2_24_999, nees
 
 
 @pytest.mark.parametrize("kind,rows", [("st1", 3), ("st2", 3), ("parity", 1)])

@@ -18,7 +18,8 @@ def test_defaults_follow_the_paper():
     # P0 = 3 L²: bias L = 3 deg/hr → σ = √3·3 deg/hr
     assert math.sqrt(si.p0_params[0]) == pytest.approx(math.sqrt(3) * 3 * DEG_PER_HR)
     assert si.q_params[4] == pytest.approx(1e-9**2)  # λ: 0.001 ppm/√s
-    assert si.q_params[-1] == pytest.approx((0.002 * ARCSEC) ** 2)
+    assert si.q_params[22] == pytest.approx((0.002 * ARCSEC) ** 2)  # φ2 (the last contract state)
+    assert si.q_params[-1] == pytest.approx(1e-12) and si.p0_params[-1] == pytest.approx(0.03**2)  # τ
     assert si.bump_sigma["lam"][1] == pytest.approx(500e-6)
     assert si.bump_sigma["mu"][3] == pytest.approx(30e-6)
     assert si.latency_st_s == 0.115
