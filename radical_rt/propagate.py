@@ -114,3 +114,47 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
         acc_f[0] += h
         k += 1
     return k, flags
+
+
+@kernel
+def predict_attitude(dtheta, dt, status, excluded, xp, A, Gp, q, omega):
+    """Propagate the attitude only (no covariance, no accumulators) through samples not yet given
+    to the filter: the low-latency "now" attitude of sample-triggered telemetry.
+
+    dtheta (m, n) [rad], dt (m,) [s], status (m,) gyro-invalid bits, excluded (n,) bool; xp, A, Gp
+    the engine's current calibration (internal parameters, scaled axes, pseudo-inverse). q (4,)
+    q_body_from_inertial, propagated in place; omega (3,) receives the last body rate [rad/s].
+    Samples with fewer than three usable gyros are skipped. Returns the number of samples used.
+    """
+    m, n = dtheta.shape
+    c = np.empty(n)
+    sg = np.empty(n)
+    s = np.empty(n)
+    th = np.empty(3)
+    work4 = np.empty(4)
+    dq = np.empty(4)
+    Gm = np.empty((3, n))
+    Mm = np.empty((3, 3))
+    active = np.empty(n, dtype=np.bool_)
+    used = 0
+    for k in range(m):
+        n_act = 0
+        for i in range(n):
+            active[i] = (not excluded[i]) and ((status[k] >> i) & 1) == 0
+            n_act += 1 if active[i] else 0
+        G = Gp
+        if n_act < n:
+            if masked_pinv(A, active, Mm, Gm) < 0:
+                continue
+            G = Gm
+        h = dt[k]
+        correct_increment_lin(dtheta[k], h, xp, active, c, sg, s)
+        for r in range(3):
+            th[r] = G[r, 0] * c[0]
+            for i in range(1, n):
+                th[r] += G[r, i] * c[i]
+            if h > 0.0:
+                omega[r] = th[r] / h
+        apply_body_rotation(q, th, work4, dq)
+        used += 1
+    return used

@@ -6,7 +6,11 @@ order: gyro samples at their reconstructed time, tracker samples at ``t_bus − 
 released once the watermark ``max(t_bus seen) − latency − reorder_slack`` has passed it, so both
 shells present the engine with the same event sequence and produce bit-identical results.
 Tracker samples older than what was already released are counted (``late_dropped``) and dropped.
-Outputs (telemetry, fault, diag) are produced at window closes (deterministic points).
+Outputs (fault, diag, window-triggered telemetry) are produced at window closes (deterministic
+points); sample-triggered telemetry (the low-latency ``tlm/small`` default) right after a SIRU
+message is taken in, with the attitude predicted from the filter's estimate through the samples
+still held back (:func:`radical_rt.propagate.predict_attitude`), so its latency is the processing
+time of one message, not the tracker latency.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from .clock import ClockConfig, GyroBatch, SiruClock
 from .filter import Engine
 from .flags import Flag, flag_names
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
+from .propagate import predict_attitude
 from .telemetry import PacketSpec, build, default_packets
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
@@ -54,6 +59,8 @@ class StreamProcessor:
         self.t_max = -math.inf
         self.last_t: dict[str, float] = {}
         self.released_t = -math.inf
+        self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
+        self._new_sample = False
         self._gyro: list[GyroBatch] = []
         self._trk: list[tuple[float, int, int, np.ndarray, int, bool]] = []
         self._seq = 0
@@ -75,6 +82,9 @@ class StreamProcessor:
         except InputError as exc:
             self._reject(topic, exc)
         self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s)
+        if self._new_sample:
+            self._new_sample = False
+            self._sample_outputs()
         return self.take_outputs()
 
     def _check_time(self, topic: str, t: float) -> None:
@@ -94,6 +104,8 @@ class StreamProcessor:
         out = self.clock.push(t_bus, tt, dth, status)
         if len(out.t):
             self._gyro.append(out)
+            self.t_now = float(out.t[-1])
+            self._new_sample = True
 
     def _feed_tracker(self, topic: str, msg: dict) -> None:
         t, q, n_stars, valid = decode_tracker(msg)
@@ -188,10 +200,31 @@ class StreamProcessor:
                                         "detail": self._fault_detail()}))
             self._last_flags = flags
         for spec in self.packets.values():
-            if spec.due(t):
+            if spec.trigger == "window" and spec.due(t):
                 self._out.append((f"tlm/{spec.name}", build(spec, self)))
         if self.diag.due(t):
             self._out.append(("diag", self.diag_message()))
+
+    def _sample_outputs(self) -> None:
+        """Sample-triggered packets due at the newest sample time, with the predicted attitude."""
+        now = None
+        for spec in self.packets.values():
+            if spec.trigger == "sample" and spec.due(self.t_now):
+                now = now or self.now()
+                self._out.append((f"tlm/{spec.name}", build(spec, now)))
+
+    def now(self) -> _Now:
+        """This processor seen at the newest sample: t, attitude and rate predicted through the
+        samples not yet given to the filter (everything else is the filter's current state)."""
+        e = self.engine
+        q, omega = e.q.copy(), e.omega.copy()
+        if e.att_valid and self._gyro:
+            b = self._gyro
+            dth = b[0].dtheta if len(b) == 1 else np.concatenate([x.dtheta for x in b])
+            dt = b[0].dt if len(b) == 1 else np.concatenate([x.dt for x in b])
+            st = b[0].status if len(b) == 1 else np.concatenate([x.status for x in b])
+            predict_attitude(dth, dt, st, e.excluded, e.xp, e.A, e.Gp, q, omega)
+        return _Now(self, self.t_now if e.att_valid else e.t, q, omega)
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
@@ -214,3 +247,23 @@ class StreamProcessor:
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:
         out, self._out = self._out, []
         return out
+
+
+class _EngineNow:
+    """The engine with t, q and omega replaced by the predicted "now" values."""
+
+    def __init__(self, engine: Engine, t: float, q: np.ndarray, omega: np.ndarray) -> None:
+        self._engine, self.t, self.q, self.omega = engine, t, q, omega
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._engine, name)
+
+
+class _Now:
+    """A StreamProcessor view whose engine is an :class:`_EngineNow` (packet source)."""
+
+    def __init__(self, sp: StreamProcessor, t: float, q: np.ndarray, omega: np.ndarray) -> None:
+        self._sp, self.engine = sp, _EngineNow(sp.engine, t, q, omega)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sp, name)

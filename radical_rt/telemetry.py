@@ -1,11 +1,23 @@
 """Telemetry packets (tlm/small, tlm/medium, tlm/large), their field catalogue and schedule.
 
 A packet is a list of fields from :data:`CATALOGUE` published every ``period_s`` of event time
-(the engine's bus time line), so batch and streaming shells emit identical packets. Defaults follow
-CONTRACT §3; a TOML packet file changes them::
+(the engine's bus time line), so batch and streaming shells emit identical packets. Its
+``trigger`` says when it is built:
+
+* ``"window"``: at the filter's window closes. ``t``, the attitude and the rate are the filter's
+  own estimate, which lags the newest data by the tracker latency plus the reorder slack (≈ 0.165 s
+  by default), because trackers are processed at their measurement epoch.
+* ``"sample"``: as soon as a SIRU message has been taken in. ``t`` is the newest gyro sample's
+  time and ``q_body_from_inertial`` / ``omega_body`` are predicted from the filter's estimate
+  through the samples it has not processed yet (gyro-only propagation with the current
+  calibration); every other field is the filter's current value. This is the low-latency
+  attitude output; ``tlm/small`` uses it by default.
+
+Defaults follow CONTRACT §3; a TOML packet file changes them::
 
     [packets.small]
-    period_s = 0.1
+    period_s = 0.01        # every sample (100 Hz)
+    trigger = "sample"
     fields = ["seq", "t", "q_body_from_inertial", "flags", "mode"]
     [packets.large]
     decimation = 10        # alternatively: every 10th window close (10 Hz base rate)
@@ -46,6 +58,9 @@ CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
 }
 
 
+TRIGGERS = ("window", "sample")
+
+
 class PacketError(ValueError):
     """Invalid packet configuration; the message names the packet and the problem."""
 
@@ -58,12 +73,13 @@ class PacketSpec:
     fields: list[str]
     period_s: float | None = None
     decimation: int | None = None
+    trigger: str = "window"  # "window" (filter window closes) or "sample" (each SIRU message)
     seq: int = 0
     next_t: float = field(default=float("-inf"))
     windows: int = 0
 
     def due(self, t: float) -> bool:
-        """Whether the packet is due at event time t (called once per window close)."""
+        """Whether the packet is due at event time t (called once per trigger event)."""
         if self.decimation is not None:
             self.windows += 1
             if self.windows >= self.decimation:
@@ -80,8 +96,8 @@ class PacketSpec:
 
 
 def default_packets() -> dict[str, PacketSpec]:
-    """The contract's default packets: small 10 Hz, medium 1 Hz, large 1 Hz."""
-    return {"small": PacketSpec("small", list(SMALL), period_s=0.1),
+    """The contract's default packets: small 10 Hz (sample-triggered), medium 1 Hz, large 1 Hz."""
+    return {"small": PacketSpec("small", list(SMALL), period_s=0.1, trigger="sample"),
             "medium": PacketSpec("medium", list(MEDIUM), period_s=1.0),
             "large": PacketSpec("large", list(LARGE), period_s=1.0)}
 
@@ -96,7 +112,7 @@ def parse_packets(doc: dict[str, Any]) -> dict[str, PacketSpec]:
             raise PacketError(f"unknown packet {name!r}; valid: small, medium, large")
         if not isinstance(spec, dict):
             raise PacketError(f"packet {name!r}: settings must be a map")
-        unknown = set(spec) - {"fields", "period_s", "decimation"}
+        unknown = set(spec) - {"fields", "period_s", "decimation", "trigger"}
         if unknown:
             raise PacketError(f"packet {name!r}: unknown setting(s) {sorted(unknown)}")
         fields_ = spec.get("fields", out[name].fields)
@@ -114,7 +130,11 @@ def parse_packets(doc: dict[str, Any]) -> dict[str, PacketSpec]:
             raise PacketError(f"packet {name!r}: decimation must be an integer ≥ 1")
         if period is None and dec is None:
             period, dec = out[name].period_s, out[name].decimation
-        out[name] = PacketSpec(name, list(fields_), period_s=period, decimation=dec)
+        trigger = spec.get("trigger", out[name].trigger)
+        if trigger not in TRIGGERS:
+            raise PacketError(f"packet {name!r}: trigger must be one of {', '.join(TRIGGERS)}, "
+                              f"got {trigger!r}")
+        out[name] = PacketSpec(name, list(fields_), period_s=period, decimation=dec, trigger=trigger)
     return out
 
 
