@@ -5,7 +5,7 @@ One file per node process holds every vehicle it serves::
     {"schema": "radical.node_checkpoint/1", "written_unix": float, "generator": str,
      "vehicles": {name: {"engine": Engine.get_state(), "params": {"active": {...}, "default": {...}},
                          "clock": SiruClock.get_state(), "packets": {name: {fields, period_s |
-                         decimation, seq}}, "stream": {"rejected": {...}, "late_dropped": int,
+                         decimation, trigger, seq}}, "stream": {"rejected": {...}, "late_dropped": int,
                          "temps": {...}}, "t": float, "mode": str}}}
 
 It is written to ``PATH.tmp-<pid>``, flushed and fsynced, then renamed over ``PATH``
@@ -46,7 +46,8 @@ def capture(sp: StreamProcessor) -> dict[str, Any]:
         "params": {"active": e.table.as_dict("active"), "default": e.table.as_dict("default")},
         "clock": sp.clock.get_state(),
         "packets": {n: {"fields": list(s.fields), "period_s": s.period_s,
-                        "decimation": s.decimation, "seq": s.seq} for n, s in sp.packets.items()},
+                        "decimation": s.decimation, "trigger": s.trigger, "seq": s.seq}
+                    for n, s in sp.packets.items()},
         "stream": {"rejected": dict(sp.rejected), "late_dropped": int(sp.late_dropped),
                    "temps": dict(sp.temps)},
         "t": float(e.t), "mode": e.mode,
@@ -113,7 +114,8 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False) -> N
         probe = type(e.table)(n_gyro=e.n_gyro)
         probe.set(state["params"]["active"])
         packets = {n: PacketSpec(n, list(p["fields"]), period_s=p["period_s"],
-                                 decimation=p["decimation"], seq=int(p["seq"]))
+                                 decimation=p["decimation"], seq=int(p["seq"]),
+                                 trigger=p.get("trigger", "window"))
                    for n, p in state["packets"].items()}
         engine_state, clock_state = state["engine"], state["clock"]
         snapshot = e.get_state()
@@ -127,12 +129,6 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False) -> N
         raise CheckpointError(f"checkpoint clock state does not fit: {exc}") from None
     e.table.set(state["params"]["active"])
     e.params_changed()
-    # Engine.set_state restores xp and the parity basis N but not what is derived from xp (sense
-    # axes, (A Aᵀ)⁻¹, ...): rebuild it, then put the saved N back (a rebuild re-orthogonalizes
-    # N against itself, which changes its last bits).
-    n_saved = e.N.copy()
-    e._refresh()
-    e.N[...] = n_saved
     sp.packets = packets
     st = state.get("stream", {})
     sp.rejected.clear()

@@ -27,7 +27,7 @@ warm_start         bump true|false (default true: the table's bump) → mode
 cold_start         – → mode
 exclude_gyro       gyro 0..n−1 (at least 3 gyros must stay included) → excluded
 include_gyro       gyro 0..n−1 → excluded
-set_packets        packets {small|medium|large: {fields, period_s | decimation}} → packets
+set_packets        packets {small|medium|large: {fields, period_s | decimation, trigger}} → packets
 checkpoint         – → path (written now; needs the node's --checkpoint PATH)
 end_stream         next "warm"|"cold"|"none" (default "warm"): end of a telemetry stream,
                    as between two archives of ``radical process`` → summary (before restart)
@@ -287,6 +287,7 @@ def packets_config(specs: dict[str, PacketSpec]) -> dict[str, dict[str, Any]]:
             d["decimation"] = s.decimation
         else:
             d["period_s"] = s.period_s
+        d["trigger"] = s.trigger
         out[name] = d
     return out
 

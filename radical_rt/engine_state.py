@@ -164,6 +164,10 @@ class EngineState:
         self.counters = defaultdict(int, state["counters"])
         self.nis_sum = defaultdict(float, state["nis_sum"])
         self.last_valid_st = {int(k): v for k, v in state["last_valid_st"].items()}
+        self.state_restored()
+
+    def state_restored(self) -> None:
+        """Rebuild what is derived from the restored arrays (the engine overrides this)."""
 
 
 def _psl(layout: StateLayout, group: str) -> slice:

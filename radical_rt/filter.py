@@ -323,6 +323,14 @@ class Engine(EngineState):
         self.dx[:] = 0.0
         self._refresh()
 
+    def state_restored(self) -> None:
+        """After :meth:`set_state`: rebuild what derives from xp (scaled axes, (AAᵀ)⁻¹, pseudo-
+        inverse), then put the saved parity basis N back (a rebuild re-orthogonalizes N against
+        itself, which would change its last bits and break bit-identical resumes)."""
+        n_saved = self.N.copy()
+        self._refresh()
+        self.N[...] = n_saved
+
     def _refresh(self) -> None:
         status = refresh_axes(self.xp, self.geo.W, self.geo.U, self.geo.V, self.N.copy(), self.A,
                               self.Minv, self.Gp, self.N)

@@ -196,7 +196,8 @@ def test_set_packets(mn):
     seq = sp.packets["small"].seq
     r = mn.cmd(cmd="set_packets", packets={"small": {"period_s": 0.5, "fields": ["seq", "t", "flags"]},
                                           "large": {"decimation": 20}})
-    assert r["ok"] and r["packets"]["small"] == {"fields": ["seq", "t", "flags"], "period_s": 0.5}
+    assert r["ok"] and r["packets"]["small"] == {"fields": ["seq", "t", "flags"], "period_s": 0.5,
+                                                 "trigger": "sample"}
     assert r["packets"]["large"]["decimation"] == 20
     assert sp.packets["small"].period_s == 0.5 and sp.packets["small"].seq == seq
 
@@ -280,3 +281,16 @@ def test_timed_out_command_is_never_applied(warm_msgs):
     finally:
         mn.close()
 
+
+
+def test_checkpoint_keeps_packet_triggers():
+    from radical_rt.batch import make_processor
+    from radical_rt.checkpoint import capture, restore
+    from radical_rt.telemetry import parse_packets
+
+    src = make_processor()
+    src.packets = parse_packets({"small": {"trigger": "window"}, "large": {"trigger": "sample"}})
+    dst = make_processor()
+    restore(dst, msgpack.unpackb(msgpack.packb(capture(src), use_bin_type=True), raw=False))
+    assert {n: s.trigger for n, s in dst.packets.items()} == {
+        "small": "window", "medium": "window", "large": "sample"}
