@@ -25,6 +25,8 @@ from typing import Any
 
 from .conventions import ARCSEC, DEG, DEG_PER_HR, PPM
 
+#: τ's prior 1σ never goes below this (a zero UD diagonal is not a valid factor): "frozen" [s]
+LATENCY_SIGMA_FLOOR_S = 1e-9
 INIT_VAR_RULES = {"3L2": 3.0, "L2/3": 1.0 / 3.0, "(L/3)2": 1.0 / 9.0}
 
 
@@ -233,6 +235,7 @@ def to_si(p: Params, n_gyro: int = 4) -> SIParams:
         st_ref_stars=p.st_ref_stars, st_min_stars=p.st_min_stars, latency_st_s=p.latency_st_s,
         st_stale_s=p.st_stale_s, arw_var_per_s=arw**2, quant_var=(p.quant_arcsec * ARCSEC) ** 2 / 6.0,
         gyro_gap_s=p.gyro_gap_s, parity_window=p.parity_window, prop_window=p.prop_window, regressor_k_sigma=p.regressor_k_sigma, parity_lag_s=p.parity_lag_s, timing_consider_s=p.timing_consider_s, q_params=tuple(q),
-        p0_params=tuple(k * x * x for x in L) + (p.latency_sigma0_s**2,), att_init_scale=p.att_init_scale, bump_sigma=bump,
+        p0_params=tuple(k * x * x for x in L) + (max(p.latency_sigma0_s, LATENCY_SIGMA_FLOOR_S) ** 2,),
+        att_init_scale=p.att_init_scale, bump_sigma=bump,
         bump_mode=p.bump_mode, gate_st_nis=p.gate_st_nis, gate_parity_nis=p.gate_parity_nis,
         edit_enabled=p.edit_enabled, conv_sigma=tuple(conv))

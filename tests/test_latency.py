@@ -140,3 +140,24 @@ def test_calibration_unaffected_by_latency_offset(lagged_run):
     assert z.size == 23 and np.max(np.abs(z)) < 4.0, z.round(2)
     c = sp.counters()
     assert c["st1_edited"] + c["st2_edited"] <= 2
+
+
+def test_frozen_latency_state_runs_normally(tmp_path):
+    """latency_sigma0_s = q_latency = 0 freezes τ at 0 (floored prior, no numeric fault)."""
+    from radical_rt.params import ParamTable
+
+    toml = tmp_path / "s.toml"
+    toml.write_text('base = "2006216"\nt_start_s = 1000.0\nduration_s = 60.0\n')
+    synthesize(str(toml), str(tmp_path / "s.mcap"), progress=False)
+    table = ParamTable()
+    table.set({"latency_sigma0_s": 0.0, "q_latency_s_sqrt_s": 0.0})
+    sp = make_processor(table)
+    with ArchiveReader(tmp_path / "s.mcap") as reader:
+        for topic, _, data in reader.iter_raw(topics=list(INPUTS)):
+            sp.feed(topic[1:], data)
+    sp.end_stream(None)
+    e = sp.engine
+    assert e.counters["numeric_faults"] == 0 and e.mode == "converging"
+    assert e.counters["st1_used"] > 500
+    lat = e.latency_estimate()
+    assert abs(lat["residual_s"]) < 1e-8 and lat["sigma_s"] <= 1e-9
