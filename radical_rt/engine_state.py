@@ -64,6 +64,7 @@ class EngineState:
         self.diag_last: dict[str, tuple] = {}
         self.last_valid_st: dict[int, float] = {}
         self.last_numeric = ""
+        self.conv_var = np.full(ns - 3, np.inf)  # convergence thresholds², set from the table
 
     # ---------------------------------------------------------------- outputs
     def variances(self) -> np.ndarray:
@@ -106,8 +107,8 @@ class EngineState:
         if not self.att_valid:
             self.mode = "init"
             return
-        var = self.variances()[3:]
-        conv = bool(np.all(np.sqrt(var) <= np.asarray(self.si.conv_sigma)))  # type: ignore[attr-defined]
+        ud.variances(self.U, self.d, self.ws.var)
+        conv = bool((self.ws.var[3:] <= self.conv_var).all())
         if conv:
             self.flags &= ~int(Flag.NOT_CONVERGED)
         else:

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import ud
 from .engine_state import EngineState, _psl
+from .fdi import FaultMonitor
 from .flags import Flag
 from .geometry import Geometry
 from .model import (
@@ -51,12 +52,14 @@ class Engine(EngineState):
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
         self.params_changed()
         self.cold_start()
+        self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
 
     # ---------------------------------------------------------------- configuration
     def params_changed(self) -> None:
         """Re-read the active parameter table (called after set/reset of parameters)."""
         self.si = to_si(self.table.active, self.n_gyro)
         self.q_params = np.asarray(self.si.q_params)
+        self.conv_var = np.asarray(self.si.conv_sigma) ** 2
 
     # ---------------------------------------------------------------- starts and bumps
     def cold_start(self) -> None:
@@ -113,6 +116,8 @@ class Engine(EngineState):
     # ---------------------------------------------------------------- gyro events
     def gyro(self, t, dt, dtheta, status, bridged, var_extra) -> None:
         """Process reconstructed gyro samples (arrays of length m, time order, all ≤ next epoch)."""
+        if self.fdi is not None:
+            self.fdi.on_gyro(t, dt, dtheta, status, bridged, var_extra)
         m = len(t)
         k = 0
         while k < m:
@@ -264,6 +269,8 @@ class Engine(EngineState):
             self._scale_regressor_columns(self.Hbuf[:nr, 3:], kappa)
         self._vector_update("parity", self.Hbuf[:nr], self.z_par, np.full(nr, noise),
                             self.si.gate_parity_nis, consider)
+        if self.fdi is not None:
+            self.fdi.on_parity(self, noise)
 
     def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
         """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics.
@@ -312,6 +319,8 @@ class Engine(EngineState):
 
     listener = None  # callable(t) run after every window close (the stream's output scheduler)
 
+    fdi = None  # radical_rt.fdi.FaultMonitor: hooks on gyro, tracker, parity and window events
+
     def _apply_correction(self) -> None:
         """Fold dx into the attitude quaternion and the parameters; dx ← 0."""
         if not np.any(self.dx):
@@ -344,6 +353,8 @@ class Engine(EngineState):
             self.counters[f"st{j}_invalid"] += 1
             return False
         self.last_valid_st[j] = t_epoch
+        if self.fdi is not None:
+            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
         if not self.att_valid:
             return self._init_attitude(j, t_epoch, q_meas, n_stars)
         self._close_window()
@@ -455,6 +466,8 @@ class Engine(EngineState):
 
     def on_window(self, t: float) -> None:
         """Hook after every window close (10 Hz, deterministic points): mode, flags, convergence."""
+        if self.fdi is not None:
+            self.fdi.on_window(self, t)
         self.update_mode(t)
         if self.listener is not None:
             self.listener(t)

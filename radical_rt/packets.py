@@ -84,11 +84,11 @@ def decode_siru(msg: dict, n_gyro: int = 4):
     if not (tt.shape[0] == dth.shape[0] == status.shape[0] == k):
         raise InputError("bad_shape", f"siru columns differ in length: t_bus {k}, tt {tt.shape[0]}, "
                                       f"dtheta {dth.shape[0]}, status {status.shape[0]}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(dth))):
+    if not (np.isfinite(t).all() and np.isfinite(dth).all()):
         raise InputError("nonfinite", "siru t_bus or dtheta contains NaN/Inf")
-    if np.any(tt < 0) or np.any(tt >= SIRU_TT_WRAP) or np.any(status < 0):
+    if (tt < 0).any() or (tt >= SIRU_TT_WRAP).any() or (status < 0).any():
         raise InputError("bad_value", "siru tt outside [0, 2**32) or negative status")
-    if k > 1 and np.any(np.diff(t) < 0):
+    if k > 1 and (np.diff(t) < 0).any():
         raise InputError("time_backwards", "siru t_bus decreases inside the batch")
     return t, tt, dth, status
 
@@ -99,17 +99,18 @@ def decode_tracker(msg: dict):
     q = _array(_field(msg, "q"), "q", np.float64)
     if q.shape != (4,):
         raise InputError("bad_shape", f"q must have 4 elements, got {q.shape[0]}")
-    if not np.all(np.isfinite(q)):
+    if not np.isfinite(q).all():
         raise InputError("nonfinite", "q contains NaN/Inf")
-    if abs(float(np.linalg.norm(q)) - 1.0) > QUAT_NORM_TOL:
-        raise InputError("non_unit_quaternion", f"‖q‖ = {np.linalg.norm(q):.6g}, expected 1")
+    norm = math.sqrt(float(q @ q))
+    if abs(norm - 1.0) > QUAT_NORM_TOL:
+        raise InputError("non_unit_quaternion", f"‖q‖ = {norm:.6g}, expected 1")
     n_stars = _field(msg, "n_stars")
     if isinstance(n_stars, bool) or not isinstance(n_stars, int) or n_stars < 0:
         raise InputError("bad_type", f"n_stars must be a non-negative integer, got {n_stars!r}")
     valid = _field(msg, "valid")
     if not isinstance(valid, bool):
         raise InputError("bad_type", f"valid must be true/false, got {valid!r}")
-    return t, q / np.linalg.norm(q), int(n_stars), valid
+    return t, q / norm, int(n_stars), valid
 
 
 def decode_temp(msg: dict) -> tuple[float, dict[str, float]]:
