@@ -1,18 +1,19 @@
 """The filter's gyro, parity and star-tracker models and their Jacobians (Numba kernels).
 
-Parameter vector ``xp`` (5n + 3) in state order: b (rad/s), lam, mu, du (rad), dv (rad), phi2 (rad,
-body axes) — see :mod:`radical_rt.state`. The attitude error ``dtheta`` (body, rad) is defined in
-:mod:`radical_rt.conventions`.
+Parameter vector ``xp`` in state order: b (rad/s), λ', μ', du', dv' (the engine's *internal*
+linear scaled-axis form, see the section below and docs/engine.md §2), φ2 (rad, body axes), then
+the extension state τ (s) — see :mod:`radical_rt.state`. The attitude error ``dtheta`` (body, rad)
+is defined in :mod:`radical_rt.conventions`.
 
 Gyro model (CONTRACT §1.5): true axes ``w̃_i = normalize(w_i − du_i v_i − dv_i u_i)``; increments
-``y_i = (1 + lam_i + mu_i·sgn(g_i))·g_i + b_i·dt``, ``g_i = w̃_i·theta``. The filter inverts it with
-its estimates: ``c_i = (y_i − b̂_i dt) / (1 + lam_i + mu_i·sgn(y_i − b̂_i dt))`` and the
-least-squares body increment ``theta_hat = Gp c`` with ``Gp = (W̃ W̃ᵀ)⁻¹ W̃`` over active gyros.
+``y_i = (1 + λ_i + μ_i·sgn(g_i))·g_i + b_i·dt``, ``g_i = w̃_i·θ``. In internal form
+``y_i = (1 + μ'_i sgn g_i)·a_iᵀθ + b_i dt`` with the scaled axis ``a_i``; the filter inverts it
+with its estimates, ``c_i = (y_i − b̂_i dt)/(1 + μ̂'_i sgn)`` and ``θ̂ = Gp c``,
+``Gp = (ÂÂᵀ)⁻¹Â`` over the active gyros.
 
-Error propagation over one sample: ``dtheta_k = R(theta_hat)ᵀ dtheta_{k−1} + F_k δp + w_k``, where
-``F_k = ∂theta_hat/∂p̂`` (3 × 5n; exact derivative of the correction, checked by finite
-differences). Parity: ``z = Nᵀ c`` with N (n, n−3) the orthonormal null basis of W̃; its
-measurement row is ``H = −∂z/∂p̂`` (δ = true − estimate).
+Error propagation over one sample: ``δθ_k = R(θ̂)ᵀ δθ_{k−1} + F_k δp + w_k`` with
+``F_k = ∂θ̂/∂p̂`` (3 × 5n, checked by finite differences). Parity: ``z = Nᵀ c`` with N (n, n−3)
+the orthonormal null basis of Â; its measurement row is ``H = −∂z/∂p̂`` (δ = true − estimate).
 """
 
 from __future__ import annotations
@@ -30,54 +31,6 @@ from .rotation import (
     rotvec_to_dcm,
     rotvec_to_quat_into,
 )
-
-
-@kernel
-def refresh_geometry(xp, W, U_ax, V_ax, N_ref, Wt, dWdu, dWdv, Minv, Gp, N):
-    """Rebuild the estimated sense axes and everything derived from them.
-
-    xp (5n+3,) parameters; W, U_ax, V_ax (3, n) nominal triads; N_ref (n, n−3) previous parity basis
-    (for continuity). Writes Wt (3, n) estimated unit axes, dWdu/dWdv (3, n) = ∂w̃_i/∂du_i, ∂w̃_i/∂dv_i,
-    Minv (3, 3) = (W̃W̃ᵀ)⁻¹, Gp (3, n) = Minv W̃, N (n, n−3) orthonormal null basis of W̃.
-    Returns 0, or 1 if W̃W̃ᵀ is singular.
-    """
-    n = W.shape[1]
-    du = xp[3 * n:4 * n]
-    dv = xp[4 * n:5 * n]
-    for i in range(n):
-        a0 = W[0, i] - du[i] * V_ax[0, i] - dv[i] * U_ax[0, i]
-        a1 = W[1, i] - du[i] * V_ax[1, i] - dv[i] * U_ax[1, i]
-        a2 = W[2, i] - du[i] * V_ax[2, i] - dv[i] * U_ax[2, i]
-        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        Wt[0, i], Wt[1, i], Wt[2, i] = a0 / na, a1 / na, a2 / na
-        wv = Wt[0, i] * V_ax[0, i] + Wt[1, i] * V_ax[1, i] + Wt[2, i] * V_ax[2, i]
-        wu = Wt[0, i] * U_ax[0, i] + Wt[1, i] * U_ax[1, i] + Wt[2, i] * U_ax[2, i]
-        for r in range(3):
-            dWdu[r, i] = (-V_ax[r, i] + Wt[r, i] * wv) / na
-            dWdv[r, i] = (-U_ax[r, i] + Wt[r, i] * wu) / na
-    M = Wt @ Wt.T
-    if abs(np.linalg.det(M)) < 1e-12:
-        return 1
-    Minv[:, :] = np.linalg.inv(M)
-    Gp[:, :] = Minv @ Wt
-    # Parity basis: project the previous basis on null(W̃), then Gram-Schmidt (continuous in W̃).
-    proj = np.eye(n) - Wt.T @ Gp
-    B = proj @ N_ref
-    for c in range(B.shape[1]):
-        for k in range(c):
-            s = 0.0
-            for r in range(n):
-                s += B[r, c] * B[r, k]
-            for r in range(n):
-                B[r, c] -= s * B[r, k]
-        s = 0.0
-        for r in range(n):
-            s += B[r, c] * B[r, c]
-        s = math.sqrt(s)
-        for r in range(n):
-            B[r, c] /= s
-    N[:, :] = B
-    return 0
 
 
 @kernel
@@ -106,79 +59,6 @@ def masked_pinv(Wt, active, Minv_out, Gp_out):
                     s += Minv_out[r, c] * Wt[c, i]
             Gp_out[r, i] = s
     return na
-
-
-@kernel
-def correct_increment(y, dt, xp, active, c_out, sgn_out, s_out):
-    """Bias/scale-factor corrected increments c (n,) of raw increments y (n,) [rad] over dt [s].
-
-    Writes c_out, sgn_out (sign of y − b̂·dt) and s_out (1 + λ̂ + μ̂·sgn), zero for inactive gyros.
-    """
-    n = y.shape[0]
-    for i in range(n):
-        if not active[i]:
-            c_out[i] = 0.0
-            sgn_out[i] = 0.0
-            s_out[i] = 1.0
-            continue
-        e = y[i] - xp[i] * dt
-        sg = 1.0 if e >= 0.0 else -1.0
-        s = 1.0 + xp[n + i] + xp[2 * n + i] * sg
-        c_out[i] = e / s
-        sgn_out[i] = sg
-        s_out[i] = s
-
-
-@kernel
-def increment_jacobian(g, sgn, s, dt, theta, Wt, dWdu, dWdv, Minv, Gp, active, F):
-    """F (3, 5n) = ∂theta_hat/∂p̂ for the gyro parameters (b, lam, mu, du, dv).
-
-    g (n,) = W̃ᵀ theta_hat, the corrected increments projected on the range of W̃ (the noise along
-    the parity directions removed, so the Jacobian is not correlated with the parity noise — an
-    errors-in-variables bias otherwise drives λ at rest); sgn, s as from :func:`correct_increment`;
-    theta (3,) = Gp c. Columns of inactive gyros are zero. Equals the exact derivative of
-    theta_hat(p̂) whenever c lies in the range of W̃ᵀ (noise-free data).
-    """
-    n = g.shape[0]
-    F[:, :] = 0.0
-    for i in range(n):
-        if not active[i]:
-            continue
-        for r in range(3):
-            F[r, i] = -Gp[r, i] * dt / s[i]
-            F[r, n + i] = -Gp[r, i] * g[i] / s[i]
-            F[r, 2 * n + i] = -Gp[r, i] * sgn[i] * g[i] / s[i]
-        for k in range(2):
-            D = dWdu if k == 0 else dWdv
-            dth = D[0, i] * theta[0] + D[1, i] * theta[1] + D[2, i] * theta[2]
-            col = (3 + k) * n + i
-            for r in range(3):
-                F[r, col] = -(Minv[r, 0] * Wt[0, i] + Minv[r, 1] * Wt[1, i]
-                              + Minv[r, 2] * Wt[2, i]) * dth
-
-
-@kernel
-def parity_rows(c, g, sgn, s, dt, theta, N, dWdu, dWdv, z_acc, H_acc):
-    """Accumulate the parity residual z = Nᵀc (n−3,) and its rows H = −∂z/∂p̂ (n−3, ≥5n).
-
-    c (n,) corrected increments (the measurement); g (n,) = W̃ᵀ theta_hat is used in the λ and μ
-    columns instead of c so that H carries no parity-direction noise (see
-    :func:`increment_jacobian`). Columns in parameter order b, lam, mu, du, dv.
-    """
-    n = c.shape[0]
-    for r in range(N.shape[1]):
-        z = 0.0
-        for i in range(n):
-            p = N[i, r]
-            z += p * c[i]
-            H_acc[r, i] += p * dt / s[i]
-            H_acc[r, n + i] += p * g[i] / s[i]
-            H_acc[r, 2 * n + i] += p * sgn[i] * g[i] / s[i]
-            H_acc[r, 3 * n + i] += p * (dWdu[0, i] * theta[0] + dWdu[1, i] * theta[1]
-                                        + dWdu[2, i] * theta[2])
-            H_acc[r, 4 * n + i] += p * (dWdv[0, i] * theta[0] + dWdv[1, i] * theta[1]
-                                        + dWdv[2, i] * theta[2])
-        z_acc[r] += z
 
 
 @kernel

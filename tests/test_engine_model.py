@@ -236,3 +236,30 @@ def test_set_state_rebuilds_derived_geometry():
     for name in ("A", "Minv", "Gp", "N", "xp", "U", "d"):
         np.testing.assert_array_equal(getattr(dst, name), getattr(src, name), err_msg=name)
     assert not np.array_equal(dst.A, Engine().A)
+
+
+def test_attitude_error_propagation_matches_nonlinear_model():
+    """δθ_k = R(θ̂)ᵀ δθ_{k−1} + F δp (internal parameters), with R_true = R(δθ)ᵀ R̂ (conventions),
+    against exact rotations of the truth and of the estimate (scipy)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    xi_true = internal_from_contract(random_contract(rng, 0.2), N_G)
+    dp = np.concatenate([rng.normal(size=5 * N_G) * np.repeat(
+        [1e-3 * DEG_PER_HR, 5 * PPM, 5 * PPM, 5 * ARCSEC, 5 * ARCSEC], N_G), np.zeros(3)])
+    xi_est = xi_true - dp
+    dth0 = rng.normal(size=3) * 5 * ARCSEC
+    R_est0 = Rotation.random(random_state=3)
+    R_true0 = Rotation.from_rotvec(dth0).inv() * R_est0
+    theta, y = truth_increment(rng, contract_from_internal(xi_true, N_G)[0], 0.01)
+    A, _, Gp, _ = axes(xi_est)
+    c, sg, s = np.zeros(N_G), np.zeros(N_G), np.zeros(N_G)
+    correct_increment_lin(y, 0.01, xi_est, ACT, c, sg, s)
+    th_hat = Gp @ c
+    R_true1 = Rotation.from_rotvec(theta).inv() * R_true0
+    R_est1 = Rotation.from_rotvec(th_hat).inv() * R_est0
+    dth1 = (R_est1 * R_true1.inv()).as_rotvec()  # R_true = R(δθ)ᵀ R̂ → R̂ R_trueᵀ = R(δθ)
+    F = np.zeros((3, 5 * N_G))
+    increment_jacobian_lin(A.T @ th_hat, sg, s, 0.01, th_hat, GEO.W, GEO.U, GEO.V, Gp, ACT, F)
+    pred = Rotation.from_rotvec(th_hat).as_matrix().T @ dth0 + F @ dp[:5 * N_G]
+    np.testing.assert_allclose(dth1, pred, atol=1e-3 * np.linalg.norm(dth1))
