@@ -1,0 +1,447 @@
+"""Dense-covariance reference of the RADICAL engine (same filter, P instead of U, d).
+
+:class:`DenseEngine` subclasses :class:`radical_rt.filter.Engine` and replaces only the
+covariance operations; models, Jacobians, propagation, parity statistics, regressor reliability,
+gating, consider logic, corrections and the order of every operation are the engine's own. The
+covariance P (ns, ns) is the single source of truth:
+
+============================  =================================  ==================================
+engine operation              UD engine (radical_rt.ud/updates)  here
+============================  =================================  ==================================
+window time update            structured_time_update (MWGS-free  P ← ΦPΦᵀ + Q, Φ = [[Φ_aa, Φ_ap],
+                              attitude-first partition)          [0, I]] (exploits the same blocks)
+parameter process noise       add_diagonal_noise (Agee-Turner)   P_ii += q_i Δt
+tracker / parity update       gated_update[_consider] (Bierman,  NIS from S = HPHᵀ + R, then per
+                              Agee-Turner for consider states)   row the Joseph form with the
+                                                                 Schmidt gain (consider rows of K
+                                                                 zeroed): P ← (I−khᵀ)P(I−khᵀ)ᵀ+rkkᵀ
+warm start / attitude init    reset_leading_block                P_aa ← P0, P_ap ← 0
+bump                          add_diagonal_noise / scale_states  P_ii += σ², or P ← SPS
+variances, contract σ         variances / ud_to_cov              diag(P), P
+============================  =================================  ==================================
+
+The Joseph form is evaluated as the equivalent symmetric rank-two update
+``P − k bᵀ − b kᵀ + α k kᵀ`` with ``b = P h``, ``α = hᵀb + r`` (no n³ products); with the
+Schmidt gain (k zero on the consider states) it gives exactly the UD engine's consider update.
+
+Code that still reads ``engine.U`` / ``engine.d`` (checkpoints, the FDI snapshots, the stream's
+``diag`` message, ``latency_estimate``) gets a UD factorization of P computed on demand. Code that
+*writes* the factors in place outside the methods overridden here (the FDI reconfiguration after a
+gyro failure) is not supported: this is a reference for fault-free runs and benchmarks.
+
+Command (the same run through both engines, final estimates compared)::
+
+    python -m perf.dense_engine [--duration 300] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from radical_rt import ud
+from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK, kernel
+from radical_rt.engine_state import _psl
+from radical_rt.filter import Engine
+from radical_rt.flags import Flag
+from radical_rt.model import contract_from_internal, quat_from_tracker
+
+# ------------------------------------------------------------------------------------- kernels
+
+
+@kernel
+def dense_time_update(P, m, Phi_aa, Phi_ap, Q_aa, T):
+    """P ← ΦPΦᵀ + Q for Φ = [[Phi_aa (m, m), Phi_ap (m, n−m)], [0, I]], Q nonzero on the leading
+    (m, m) block only (upper triangle of Q_aa read). T (m, n) work. Only the leading m rows and
+    columns change."""
+    n = P.shape[0]
+    p = n - m
+    if Phi_aa.shape[0] != m or Phi_ap.shape[1] != p or T.shape[0] < m or T.shape[1] < n:
+        return ERR_SHAPE
+    for i in range(m):  # T = [Φ_aa Φ_ap] P  (the new leading rows before Φᵀ on the right)
+        for j in range(n):
+            s = 0.0
+            for k in range(m):
+                s += Phi_aa[i, k] * P[k, j]
+            for k in range(p):
+                s += Phi_ap[i, k] * P[m + k, j]
+            T[i, j] = s
+    for i in range(m):
+        for j in range(p):  # P_ap ← (ΦP)_ap
+            P[i, m + j] = T[i, m + j]
+            P[m + j, i] = T[i, m + j]
+        for j in range(i, m):  # P_aa ← T Φᵀ (leading columns) + Q_aa
+            s = Q_aa[i, j] if j >= i else Q_aa[j, i]
+            for k in range(m):
+                s += T[i, k] * Phi_aa[j, k]
+            for k in range(p):
+                s += T[i, m + k] * Phi_ap[j, k]
+            P[i, j] = s
+            P[j, i] = s
+    for i in range(m):
+        if not (P[i, i] > 0.0 and math.isfinite(P[i, i])):
+            return ERR_NOT_POSITIVE
+    return OK
+
+
+@kernel
+def dense_add_diagonal(P, idx, c):
+    """P[idx[k], idx[k]] += c[k] (c ≥ 0)."""
+    for k in range(idx.shape[0]):
+        if not math.isfinite(c[k]):
+            return ERR_NONFINITE
+        if c[k] < 0.0:
+            return ERR_NOT_POSITIVE
+    for k in range(idx.shape[0]):
+        P[idx[k], idx[k]] += c[k]
+    return OK
+
+
+@kernel
+def dense_reset_leading(P, m, P0):
+    """Leading (m, m) block ← P0 (symmetrized), its cross-covariance ← 0."""
+    n = P.shape[0]
+    for i in range(m):
+        for j in range(n):
+            P[i, j] = 0.0
+            P[j, i] = 0.0
+    for i in range(m):
+        for j in range(m):
+            P[i, j] = 0.5 * (P0[i, j] + P0[j, i])
+    return OK
+
+
+@kernel
+def dense_innovation_test(P, dx, H, z, rdiag, S, innov, sig, PHt):
+    """innov = z − H dx, S = HPHᵀ + R, sig = sqrt(diag S); returns the NIS νᵀS⁻¹ν. PHt (n, m)."""
+    m, n = H.shape
+    for a in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[a, j] * dx[j]
+        innov[a] = z[a] - s
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += P[i, j] * H[a, j]
+            PHt[i, a] = acc
+    for a in range(m):
+        for b in range(m):
+            acc = rdiag[a] if a == b else 0.0
+            for j in range(n):
+                acc += H[a, j] * PHt[j, b]
+            S[a, b] = acc
+        sig[a] = np.sqrt(S[a, a]) if S[a, a] > 0 else 0.0
+    return innov @ np.linalg.solve(S, innov)
+
+
+@kernel
+def dense_gated_update(P, dx, H, z, rdiag, gate, edit_enabled, consider, S, innov, sig, PHt, b, k):
+    """Gated sequential update of rows H (m, n) with noise variances rdiag (m,) (same returns as
+    :func:`radical_rt.updates.gated_update`: status, NIS, 0 accepted / 1 edited).
+
+    Per row: b = P h, α = hᵀb + r, k = b/α with the consider states' entries zeroed (Schmidt
+    gain), dx += k (z − h·dx), Joseph form P ← (I − khᵀ)P(I − khᵀ)ᵀ + r kkᵀ, evaluated as
+    P − kbᵀ − bkᵀ + α kkᵀ."""
+    m, n = H.shape
+    nis = dense_innovation_test(P, dx, H, z, rdiag, S, innov, sig, PHt)
+    if edit_enabled and not (nis <= gate):
+        return 0, nis, 1
+    for a in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[a, j] * dx[j]
+        res = z[a] - s
+        alpha = rdiag[a]
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += P[i, j] * H[a, j]
+            b[i] = acc
+            alpha += H[a, i] * acc
+        if not math.isfinite(alpha):
+            return ERR_NONFINITE, nis, 0
+        if not (alpha > 0.0 and rdiag[a] > 0.0):
+            return ERR_NOT_POSITIVE, nis, 0
+        for i in range(n):
+            k[i] = 0.0 if consider[i] else b[i] / alpha
+            dx[i] += k[i] * res
+        for i in range(n):
+            for j in range(i, n):
+                v = P[i, j] - k[i] * b[j] - b[i] * k[j] + alpha * k[i] * k[j]
+                P[i, j] = v
+                P[j, i] = v
+    for i in range(n):
+        if not (P[i, i] > 0.0 and math.isfinite(P[i, i])):
+            return ERR_NOT_POSITIVE, nis, 0
+    return 0, nis, 0
+
+
+# -------------------------------------------------------------------------------------- engine
+
+
+class DenseEngine(Engine):
+    """:class:`Engine` with the covariance kept dense (see the module docstring)."""
+
+    def __init__(self, table=None, geometry=None) -> None:
+        self.P = np.zeros((0, 0))  # allocated by the first cold start (_from_ud)
+        self._ud_synced = True
+        super().__init__(table, geometry)
+        ns = self.ns
+        self._T = np.zeros((3, ns))
+        self._PHt = np.zeros((ns, self.Hbuf.shape[0]))
+        self._b = np.zeros(ns)
+        self._k = np.zeros(ns)
+        self._no_consider = np.zeros(ns, dtype=np.bool_)
+
+    # ---------------------------------------------------------- U, d: derived views of P
+    @property
+    def U(self) -> np.ndarray:
+        if not self._ud_synced:
+            self._factor()
+        return self._U
+
+    @U.setter
+    def U(self, value: np.ndarray) -> None:
+        self._U = value
+
+    @property
+    def d(self) -> np.ndarray:
+        if not self._ud_synced:
+            self._factor()
+        return self._d
+
+    @d.setter
+    def d(self, value: np.ndarray) -> None:
+        self._d = value
+
+    def _factor(self) -> None:
+        """U, d ← UD factors of P (for readers outside the overridden methods)."""
+        self._ud_synced = True
+        if ud.factor_ud(self.P, self._U, self._d) != OK:
+            self._U[:, :] = np.nan
+            self._d[:] = np.nan
+
+    def _from_ud(self) -> None:
+        """P ← U diag(d) Uᵀ after code that wrote the factors (cold start, checkpoint restore)."""
+        if self.P.shape != (self.ns, self.ns):
+            self.P = np.empty((self.ns, self.ns))
+        ud.ud_to_cov(self._U, self._d, self.P)
+        self._ud_synced = True
+
+    def _dirty(self, status: int = OK) -> None:
+        self._ud_synced = False
+        self._check(status)
+
+    # ---------------------------------------------------------- starts, bumps, restore
+    def cold_start(self) -> None:
+        super().cold_start()  # writes U = I, d = (1, 1, 1, p0): P ← diag
+        self._from_ud()
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        super().set_state(state)
+        self._from_ud()
+
+    def warm_start(self, bump: bool = True) -> None:
+        self._dirty(dense_reset_leading(self.P, 3, np.eye(3)))
+        if bump:
+            self.bump(dict(self.si.bump_sigma), self.si.bump_mode)
+        self._begin_attitude_init()
+        self.counters["warm_starts"] += 1
+
+    def bump(self, sigma, mode: str = "add") -> None:
+        if mode == "add":
+            idx, c = [], []
+            for group, values in sigma.items():
+                sl = self.layout[group]
+                for k, v in enumerate(values):
+                    idx.append(sl.start + k)
+                    c.append(float(v) ** 2)
+            self._dirty(dense_add_diagonal(self.P, np.asarray(idx, np.int64), np.asarray(c)))
+        else:
+            var = self.variances()
+            s = np.ones(self.ns)
+            for group, values in sigma.items():
+                sl = self.layout[group]
+                s[sl] = np.sqrt(1.0 + np.asarray(values, float) ** 2 / var[sl])
+            self.P *= np.outer(s, s)
+            self._dirty()
+        self.counters["bumps"] += 1
+
+    def _init_attitude(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
+        if j == 2 and t_epoch - self.last_valid_st.get(1, -math.inf) < self.si.st_stale_s:
+            return False
+        R_nom, use_phi = self._mounting(j)
+        phi = self.xp[_psl(self.layout, "phi2")]
+        self.q[:] = quat_from_tracker(np.asarray(q_meas, float), R_nom, phi, use_phi)
+        sig_body = np.abs(R_nom.T) @ (self._tracker_sigma(n_stars) * self.si.att_init_scale)
+        P0 = np.diag(sig_body**2)
+        if use_phi:
+            P0 += np.diag(np.diag(self.P)[self.layout["phi2"]])
+        self._dirty(dense_reset_leading(self.P, 3, P0))
+        self.att_valid = True
+        self.t = t_epoch
+        self.mode = "converging"
+        self.flags &= ~int(Flag.GYRO_GAP)
+        self._reset_window()
+        self.counters["att_inits"] += 1
+        return True
+
+    # ---------------------------------------------------------- time update, regressor
+    def _regressor_reliability(self, theta, Phi_g, noise_var: float) -> float:
+        th2 = float(theta @ theta)
+        if th2 <= 0.0:
+            return 0.0
+        g = slice(3, 3 + 5 * self.n_gyro)
+        Pgg = self.P[g, g]
+        v = Phi_g.T @ theta
+        s_par = (float(v @ Pgg @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
+        return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
+
+    def _close_window(self) -> None:
+        if self.acc_i[0] == 0:
+            return
+        n = self.n_gyro
+        kappa = self._regressor_reliability(
+            self.th_acc, self.Phi_ap[:, :5 * n],
+            self.si.arw_var_per_s * self.acc_f[0] + self.si.quant_var)
+        self.kappa_last[0] = kappa
+        if kappa < 1.0:
+            self._scale_regressor_columns(self.Phi_ap, kappa)
+        self._dirty(dense_time_update(self.P, 3, self.Phi_aa, self.Phi_ap, self.Q_aa, self._T))
+        self._dirty(dense_add_diagonal(self.P, self.param_idx, self.q_params * self.acc_f[0]))
+        self._reset_time_window()
+        if self.acc_i[1] >= self.si.parity_window:
+            self._queue_parity()
+        while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
+            self._parity_update(*self.parity_queue.popleft()[1:])
+
+    # ---------------------------------------------------------- measurement update
+    def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
+        m = H.shape[0]
+        status, nis, edited = dense_gated_update(
+            self.P, self.dx, H, z, rdiag, gate, self.si.edit_enabled,
+            self._no_consider if consider is None else consider, self.Sbuf[:m, :m],
+            self.innov[:m], self.sig[:m], self._PHt[:, :m], self._b, self._k)
+        if not edited:
+            self._dirty(status)
+        self.diag_last[kind] = (self.innov[:m].copy(), self.sig[:m].copy(), float(nis))
+        if edited:
+            self.counters[f"{kind}_edited"] += 1
+            return False
+        self.counters[f"{kind}_used"] += 1
+        self.nis_sum[kind] += nis
+        return True
+
+    # ---------------------------------------------------------- outputs, health
+    def variances(self) -> np.ndarray:
+        return np.diag(self.P).copy()
+
+    def contract_params(self) -> tuple[np.ndarray, np.ndarray]:
+        xc, J = contract_from_internal(self.xp, self.n_gyro)
+        return xc, J @ self.P[3:, 3:] @ J.T
+
+    def update_mode(self, t: float) -> None:
+        for j, bit in ((1, Flag.ST1_STALE), (2, Flag.ST2_STALE)):
+            if t - self.last_valid_st.get(j, -math.inf) > self.si.st_stale_s:
+                self.flags |= bit
+            else:
+                self.flags &= ~int(bit)
+        if not self.att_valid:
+            self.mode = "init"
+            return
+        conv = bool((np.diag(self.P)[3:] <= self.conv_var).all())
+        if conv:
+            self.flags &= ~int(Flag.NOT_CONVERGED)
+        else:
+            self.flags |= Flag.NOT_CONVERGED
+        if self.excluded.any() or self.flags & Flag.NUMERIC:
+            self.mode = "degraded"
+        else:
+            self.mode = "converged" if conv else "converging"
+
+    def _numeric(self, why: str) -> None:
+        self.flags |= Flag.NUMERIC
+        self.counters["numeric_faults"] += 1
+        self.last_numeric = why
+        dP = np.diag(self.P)
+        if not (np.all(np.isfinite(self.P)) and np.all(dP > 0) and np.all(np.isfinite(self.xp))):
+            self.xp[:] = np.where(np.isfinite(self.xp), self.xp, 0.0)
+            self.P[:, :] = np.diag(np.concatenate([np.ones(3), np.asarray(self.si.p0_params)]))
+            self._ud_synced = False
+            self._begin_attitude_init()
+
+
+# ------------------------------------------------------------------------------ stream helpers
+
+
+def make_processor(engine_cls=Engine, table=None, clock_mode: str = "reconstruct"):
+    """A stream processor as :func:`radical_rt.batch.make_processor` builds it, with the engine
+    class of choice (``Engine`` or :class:`DenseEngine`)."""
+    from radical_rt.clock import ClockConfig, SiruClock
+    from radical_rt.stream import StreamProcessor
+
+    engine = engine_cls(table)
+    return StreamProcessor(engine, SiruClock(ClockConfig(mode=clock_mode), n_gyro=engine.n_gyro))
+
+
+def run_archive(sp, path: str | Path):
+    """Feed one archive's inputs through ``sp`` (the batch shell's loop, no output archive)."""
+    from radical_rt.batch import INPUTS
+    from replayer.archive import ArchiveReader
+
+    with ArchiveReader(str(path)) as reader:
+        for topic, _, data in reader.iter_raw(topics=list(INPUTS)):
+            sp.feed(topic[1:], data)
+    sp.end_stream(None)
+    return sp
+
+
+def compare(a: Engine, b: Engine) -> dict[str, float]:
+    """Largest differences between two engines' final states: parameters in units of the first
+    engine's σ, attitude (rad), relative σ and covariance differences."""
+    sa, sb = np.sqrt(a.variances()), np.sqrt(b.variances())
+    Pa = np.empty((a.ns, a.ns))
+    ud.ud_to_cov(a.U, a.d, Pa)
+    Pb = b.P if isinstance(b, DenseEngine) else np.empty((b.ns, b.ns))
+    if not isinstance(b, DenseEngine):
+        ud.ud_to_cov(b.U, b.d, Pb)
+    corr = np.outer(sa, sa)
+    dq = a.q * np.sign(a.q[3]) - b.q * np.sign(b.q[3])
+    return {"max_param_diff_sigma": float(np.max(np.abs(a.xp - b.xp) / sa[3:])),
+            "att_diff_rad": float(2.0 * np.linalg.norm(dq[:3])),
+            "max_sigma_rel_diff": float(np.max(np.abs(sb / sa - 1.0))),
+            "max_cov_diff_corr": float(np.max(np.abs(Pa - Pb) / corr))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args(argv)
+    from replayer.synth.api import synthesize
+
+    with tempfile.TemporaryDirectory() as tmp:
+        toml = Path(tmp) / "s.toml"
+        toml.write_text('base = "2006216"\nt_start_s = 1000.0\n')
+        sim = Path(tmp) / "sim.mcap"
+        synthesize(str(toml), sim, seed=a.seed, duration=a.duration)
+        out = {}
+        for cls in (Engine, DenseEngine):
+            t0 = time.perf_counter()
+            out[cls.__name__] = run_archive(make_processor(cls), sim).engine
+            print(f"{cls.__name__}: {time.perf_counter() - t0:.2f} s", file=sys.stderr)
+    for k, v in compare(out["Engine"], out["DenseEngine"]).items():
+        print(f"{k}: {v:.3e}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
