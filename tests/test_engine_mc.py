@@ -38,9 +38,9 @@ import os
 import numpy as np
 import pytest
 
-from studies.montecarlo import MCConfig, chi2_mean_bounds, format_summary, run_many, summarize
 from radical_rt.filter import Engine
 from radical_rt.state import PARAM_GROUPS
+from studies.montecarlo import MCConfig, chi2_mean_bounds, format_summary, run_many, summarize
 
 SEEDS = range(1, 21)
 CFG = MCConfig(thermal=False, truth_scale=1.0 / 3.0)
