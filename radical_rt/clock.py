@@ -250,6 +250,23 @@ class SiruClock:
         return GyroBatch(of[:, O_T], of[:, O_DT], of[:, O_DTH:], oi[:, O_ST],
                          oi[:, O_BR].astype(bool), of[:, O_VAR])
 
+    def pending(self) -> tuple[np.ndarray, int] | None:
+        """The read held back for look-ahead when it is probably the next sample (its tag differs
+        from the last accepted one): ``(dtheta (n,) rad, status bits)``; None otherwise. For
+        low-latency predictions only: whether it is a repeat, a miss or the next sample is known
+        when the following read arrives."""
+        ist, fst = self._I, self._F
+        if not ist[L.I_HAVE_P]:
+            return None
+        if ist[L.I_HAVE_A] and ist[L.I_TT_P] == ist[L.I_TT_A]:
+            return None
+        dp = L.DA + self.n_gyro
+        return fst[dp:dp + self.n_gyro].copy(), int(ist[L.I_ST_P])
+
+    def period_s(self) -> float:
+        """Current estimate of the SIRU sample period [s]."""
+        return float(period(self._F))
+
     # ------------------------------------------------------------------ status
     @property
     def counters(self) -> dict[str, int]:

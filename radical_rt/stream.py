@@ -215,16 +215,27 @@ class StreamProcessor:
 
     def now(self) -> _Now:
         """This processor seen at the newest sample: t, attitude and rate predicted through the
-        samples not yet given to the filter (everything else is the filter's current state)."""
+        samples not yet given to the filter and through the read the clock holds back (taken as
+        the next sample, one estimated period later, unless it repeats the last one); everything
+        else is the filter's current state."""
         e = self.engine
         q, omega = e.q.copy(), e.omega.copy()
-        if e.att_valid and self._gyro:
+        if not e.att_valid:
+            return _Now(self, e.t, q, omega)
+        if self._gyro:
             b = self._gyro
             dth = b[0].dtheta if len(b) == 1 else np.concatenate([x.dtheta for x in b])
             dt = b[0].dt if len(b) == 1 else np.concatenate([x.dt for x in b])
             st = b[0].status if len(b) == 1 else np.concatenate([x.status for x in b])
             predict_attitude(dth, dt, st, e.excluded, e.xp, e.A, e.Gp, q, omega)
-        return _Now(self, self.t_now if e.att_valid else e.t, q, omega)
+        t = self.t_now
+        pend = self.clock.pending()  # the newest read, held back by the clock's look-ahead
+        if pend is not None and math.isfinite(t):
+            period = self.clock.period_s()
+            predict_attitude(pend[0][None, :], np.array([period]), np.array([pend[1]]),
+                             e.excluded, e.xp, e.A, e.Gp, q, omega)
+            t += period
+        return _Now(self, t, q, omega)
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
@@ -233,6 +244,8 @@ class StreamProcessor:
             d["last_reject"] = getattr(self, "last_reject", "")
         if self.engine.last_numeric:
             d["numeric"] = self.engine.last_numeric
+        if self.engine.fdi is not None:  # parity FDI state, alarm and last isolation (docs/fdi.md)
+            d["fdi"] = self.engine.fdi.detail()
         return d
 
     def diag_message(self) -> dict[str, Any]:
@@ -242,6 +255,7 @@ class StreamProcessor:
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
                 "clock": self.clock.telemetry(), "temps": dict(self.temps),
                 "latency": e.latency_estimate(),
+                "fdi": e.fdi.detail() if e.fdi is not None else None,
                 "ud": {"d_min": float(np.min(e.d)), "d_max": float(np.max(e.d))}}
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:

@@ -82,7 +82,11 @@ def test_small_packet_is_at_the_newest_sample(slew_packets):
     rows = [r for r in small if r[2] > -math.inf and r[0] > r[2]]
     assert len(small) > 3000  # 10 Hz over ≈ 400 s
     t_pkt, t_filter, t_now = (np.array([r[i] for r in small[100:]]) for i in (0, 2, 3))
-    np.testing.assert_array_equal(t_pkt, t_now)  # t = the newest sample taken in
+    # t = the newest read: one estimated period after the newest sample the clock released (it
+    # holds one read back for look-ahead), except after a repeated read
+    ahead = t_pkt - t_now
+    assert np.all((ahead == 0.0) | (np.abs(ahead - 0.01) < 1e-5)), np.unique(ahead.round(6))
+    assert np.mean(ahead > 0) > 0.95
     lead = t_pkt - t_filter
     assert 0.14 < np.median(lead) < 0.19, np.median(lead)  # latency 0.115 + slack 0.05 (+ batching)
     assert len(rows) > 3000
@@ -137,3 +141,18 @@ def test_gyro_batch_prediction_skips_undetermined_samples():
                   np.array([0b0011, 0]), np.zeros(2, bool), np.zeros(2))
     used = predict_attitude(b.dtheta, b.dt, b.status, e.excluded, e.xp, e.A, e.Gp, q, omega)
     assert used == 1 and np.linalg.norm(omega) > 0
+
+
+def test_clock_pending_is_the_held_back_read():
+    from radical_rt.clock import ClockConfig, SiruClock
+
+    clk = SiruClock(ClockConfig(), n_gyro=4)
+    assert clk.pending() is None
+    dth = np.arange(12, dtype=float).reshape(3, 4) * 1e-6
+    out = clk.push([10.00, 10.01, 10.02], [0, 10000, 20000], dth, [0, 0, 0b10])
+    assert len(out.t) == 2  # the third read is held back
+    got = clk.pending()
+    assert got is not None and np.array_equal(got[0], dth[2]) and got[1] == 0b10
+    clk.push([10.03], [20000], dth[2:3], [0b10])  # repeats the last sample's tag
+    assert clk.pending() is None
+    assert 0.0099 < clk.period_s() < 0.0101
