@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out
 
-.PHONY: demo test venv lint bench clean sysdeps
+.PHONY: demo test venv lint bench bench-quick clean sysdeps
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -29,11 +29,15 @@ test: $(STAMP) sysdeps
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check radical_rt replayer monitors perf tests
+	$(BIN)/ruff check radical_rt replayer monitors perf studies tests
 	$(BIN)/mypy
 
 bench: $(STAMP)
 	$(BIN)/radical bench --profile full --out perf/results
+
+# The quick profile (a few minutes; the live benches also run inside `make test`, tests/test_perf_live.py).
+bench-quick: $(STAMP)
+	$(BIN)/radical bench --profile quick --out perf/results
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache

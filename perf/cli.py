@@ -2,6 +2,9 @@
 
 Each benchmark module exposes ``run(profile, out_dir) -> dict`` and writes ``DIR/<name>_<profile>.json``;
 this command runs them in turn and writes ``DIR/summary_<profile>.json`` and ``DIR/summary_<profile>.md``.
+The live benchmarks (startup, latency, capacity; real Zenoh on loopback, see perf/README.md) also
+return regression checks (ratios measured in the same run); the exit code is 1 if a benchmark
+failed or a check did not pass.
 """
 
 from __future__ import annotations
@@ -13,7 +16,8 @@ import sys
 from pathlib import Path
 
 BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine": "perf.bench_engine",
-           "clock": "perf.bench_clock"}
+           "clock": "perf.bench_clock", "startup": "perf.bench_startup",
+           "latency": "perf.bench_latency", "capacity": "perf.bench_capacity"}
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
@@ -39,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
         except Exception as exc:  # a broken benchmark must not hide the others' figures
             failed.append(name)
             print(f"bench {name}: FAILED: {exc!r}", file=sys.stderr)
+    bad_checks = [f"{name}: {c.get('name')}" for name, res in results.items() if isinstance(res, dict)
+                  for c in res.get("checks") or [] if isinstance(c, dict) and c.get("ok") is False]
     (out / f"summary_{args.profile}.json").write_text(json.dumps(results, indent=1, default=str))
     lines = [f"# radical bench ({args.profile})", ""]
     for name, res in results.items():
@@ -46,4 +52,6 @@ def run(args: argparse.Namespace) -> int:
         lines += [f"## {name}", "", md(res) if md else "```\n" + json.dumps(res, indent=1, default=str) + "\n```", ""]
     (out / f"summary_{args.profile}.md").write_text("\n".join(lines))
     print("\n".join(lines))
-    return 1 if failed else 0
+    for line in bad_checks:
+        print(f"bench check FAILED: {line}", file=sys.stderr)
+    return 1 if failed or bad_checks else 0

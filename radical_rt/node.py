@@ -19,12 +19,14 @@ an archive's input messages in ``log_time`` order ends with bit-identical estima
 from __future__ import annotations
 
 import functools
+import gc
 import logging
 import math
 import queue
 import re
 import threading
 import time
+from array import array
 from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
@@ -104,6 +106,64 @@ class Vehicle:
                 if n.last_checkpoint_mono is not None else None}
 
 
+class LoopTiming:
+    """Optional per-message timing of the filter loop (``radical node --timing-out``, perf/).
+
+    One record per message the loop takes: vehicle and topic indices, CLOCK_MONOTONIC ns stamps
+    (comparable across processes on one host) at the subscriber callback (``recv_ns``), when the
+    loop took it (``start_ns``), after the StreamProcessor (``fed_ns``) and after its outputs were
+    published (``done_ns``), and the tlm packets it published, packed as
+    ``n_small | n_medium << 8 | n_large << 16``. Records go to a flat int64 ``array`` (56 B each).
+    With :meth:`watch_gc`, every garbage collection of the process is recorded too (start, stop,
+    generation).
+    """
+
+    FIELDS = ("vehicle", "topic", "recv_ns", "start_ns", "fed_ns", "done_ns", "tlm")
+    KINDS = ("small", "medium", "large")
+
+    def __init__(self, vehicles: list[str]) -> None:
+        self.vehicles = list(vehicles)
+        self._vi = {name: i for i, name in enumerate(self.vehicles)}
+        self._ti = {name: i for i, name in enumerate(INPUT_TOPICS)}
+        self._shift = {f"tlm/{k}": 8 * i for i, k in enumerate(self.KINDS)}
+        self.buf = array("q")
+        self.gc_buf = array("q")  # (start_ns, stop_ns, generation) per garbage collection
+        self._gc_t0 = 0
+
+    def watch_gc(self) -> None:
+        """Record every garbage collection of this process from now on (``gc.callbacks``)."""
+        gc.callbacks.append(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._gc_t0 = time.monotonic_ns()
+        else:
+            self.gc_buf.extend((self._gc_t0, time.monotonic_ns(), int(info.get("generation", -1))))
+
+    def record(self, vehicle: str, topic: str, recv_ns: int, start_ns: int, fed_ns: int,
+               done_ns: int, outs: list[tuple[str, Any]]) -> None:
+        tlm = 0
+        for out_topic, _msg in outs:
+            sh = self._shift.get(out_topic)
+            if sh is not None:
+                tlm += 1 << sh
+        self.buf.extend((self._vi.get(vehicle, -1), self._ti.get(topic, -1), recv_ns, start_ns,
+                         fed_ns, done_ns, tlm))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        a = np.frombuffer(self.buf, dtype=np.int64).reshape(-1, len(self.FIELDS))
+        return {name: a[:, i].copy() for i, name in enumerate(self.FIELDS)}
+
+    def save(self, path: str) -> None:
+        """Write the records as an ``.npz`` (one array per field, plus vehicle and topic names)."""
+        arrays = self.arrays()
+        g = np.frombuffer(self.gc_buf, dtype=np.int64).reshape(-1, 3)
+        arrays.update(vehicles=np.array(self.vehicles), topics=np.array(INPUT_TOPICS),
+                      kinds=np.array(self.KINDS), gc_start_ns=g[:, 0].copy(),
+                      gc_stop_ns=g[:, 1].copy(), gc_generation=g[:, 2].copy())
+        np.savez(path, **arrays)  # type: ignore[arg-type]
+
+
 class _Pending:
     """A command waiting for the filter loop; the reply is handed back through an event."""
 
@@ -151,7 +211,8 @@ class FilterNode:
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
                  checkpoint_path: str | None = None, checkpoint_every_s: float = 60.0,
                  queue_size: int = 4096, queue_wait_s: float = 1.0, block_outputs: bool = False,
-                 command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic):
+                 command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
+                 timing: LoopTiming | None = None):
         if not processors:
             raise ValueError("at least one vehicle is needed")
         if queue_size < 1 or checkpoint_every_s <= 0:
@@ -173,6 +234,7 @@ class FilterNode:
         self.last_checkpoint_mono: float | None = None
         self.loop_error: BaseException | None = None
         self.running = False
+        self.timing = timing  # per-message timing records (perf), or None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -222,6 +284,7 @@ class FilterNode:
 
     # ------------------------------------------------------------------ callbacks (any thread)
     def _on_sample(self, v: Vehicle, key: str, data: bytes) -> None:
+        t_recv = time.monotonic_ns() if self.timing is not None else 0
         topic = key[len(v.prefix):] if key.startswith(v.prefix) else key
         if topic not in INPUT_TOPICS:
             return  # our own outputs and unrelated keys
@@ -230,7 +293,7 @@ class FilterNode:
         try:
             with self._count_lock:
                 self._enqueued += 1
-            self.queue.put((v, topic, data), timeout=self.queue_wait_s)
+            self.queue.put((v, topic, data, t_recv), timeout=self.queue_wait_s)
         except queue.Full:
             with self._count_lock:
                 self._enqueued -= 1
@@ -300,7 +363,8 @@ class FilterNode:
                 reply = commands.error_reply(f"internal error: {exc}", p.cmd)
             p.finish(reply)
 
-    def _feed(self, v: Vehicle, topic: str, data: bytes) -> None:
+    def _feed(self, v: Vehicle, topic: str, data: bytes, t_recv: int = 0) -> None:
+        t_start = time.monotonic_ns() if self.timing is not None else 0
         try:
             outs = v.sp.feed(topic, data)
         except Exception as exc:  # a bug below the input checks: count it, keep serving
@@ -308,7 +372,12 @@ class FilterNode:
             _note_reject(v.sp, topic, "internal_error", f"{type(exc).__name__}: {exc}")
             outs = v.sp.take_outputs()
         v.fed[topic] += 1
+        if self.timing is None:
+            self._publish(v, outs)
+            return
+        t_fed = time.monotonic_ns()
         self._publish(v, outs)
+        self.timing.record(v.name, topic, t_recv, t_start, t_fed, time.monotonic_ns(), outs)
 
     def _publish(self, v: Vehicle, outs: list[tuple[str, dict[str, Any]]]) -> None:
         for topic, msg in outs:

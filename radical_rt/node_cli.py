@@ -53,6 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--block-outputs", action="store_true",
                    help="BLOCK congestion control for all outputs (default: fault only)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+    p.add_argument("--timing-out", metavar="PATH.npz",
+                   help="record per-message filter-loop timing (monotonic ns: callback, loop, fed, "
+                        "published) and garbage collections; write them to PATH.npz at exit "
+                        "(perf/bench_latency.py)")
 
 
 def _fail(msg: str) -> int:
@@ -76,10 +80,11 @@ def _check(args: argparse.Namespace) -> str | None:
         return "--queue-size must be ≥ 1"
     if args.resume_bump and not args.resume:
         return "--resume-bump needs --resume"
-    if args.checkpoint:
-        parent = Path(args.checkpoint).resolve().parent
-        if not parent.is_dir():
-            return f"--checkpoint {args.checkpoint}: directory does not exist: {parent}"
+    for opt, path in (("--checkpoint", args.checkpoint), ("--timing-out", args.timing_out)):
+        if path:
+            parent = Path(path).resolve().parent
+            if not parent.is_dir():
+                return f"{opt} {path}: directory does not exist: {parent}"
     return None
 
 
@@ -102,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if err:
         return _fail(err)
     from .checkpoint import CheckpointError
-    from .node import FilterNode, build_processors, warm_up
+    from .node import FilterNode, LoopTiming, build_processors, warm_up
     from .params import ParamError
     from .telemetry import PacketError
     from .transport import TransportError, ZenohTransport
@@ -120,9 +125,13 @@ def run(args: argparse.Namespace) -> int:
         transport = ZenohTransport(args.mode, listen, connect, config_file=args.zenoh_config)
     except (TransportError, zconfig.ZenohConfigError) as exc:
         return _fail(str(exc))
+    timing = None
+    if args.timing_out:
+        timing = LoopTiming(list(processors))
+        timing.watch_gc()
     node = FilterNode(transport, processors, checkpoint_path=args.checkpoint,
                       checkpoint_every_s=args.checkpoint_every, queue_size=args.queue_size,
-                      block_outputs=args.block_outputs)
+                      block_outputs=args.block_outputs, timing=timing)
     stop = threading.Event()
     got: list[str] = []
 
@@ -150,6 +159,11 @@ def run(args: argparse.Namespace) -> int:
                 log.info("final checkpoint written to %s", args.checkpoint)
         except Exception as exc:
             log.error("final checkpoint failed: %s", exc)
+        if node.timing is not None:
+            try:
+                node.timing.save(args.timing_out)
+            except OSError as exc:
+                log.error("cannot write --timing-out %s: %s", args.timing_out, exc)
         transport.close()
         for s, h in old.items():
             signal.signal(s, h)
