@@ -24,9 +24,10 @@ Analysis (:func:`analyse`), per vehicle, after the warm-up:
 
 * ``service``: publication of a SIRU message → the node has fed it and published its outputs;
 * ``reaction``: publication of the message that triggered a tlm packet → reception of the packet;
-* ``inclusion``: publication of a SIRU sample → reception of the first tlm packet whose ``t`` is at
-  or after the sample's reconstructed time (the node's own clock, replayed offline here), i.e. the
-  first packet that includes the sample;
+* ``inclusion``: publication of a SIRU sample → reception of the first tlm packet that includes
+  it: whose ``t`` is at least the sample's reconstructed time (the node's own clock, replayed
+  offline here) less half a sample period (``INCLUSION_TOL_S``: a sample-triggered packet's ``t``
+  is the clock's prediction for the newest read, µs off the value reconstructed later);
 * node-internal: callback → published (``node_total``), split into queue wait, StreamProcessor and
   publish; the Zenoh hop in (``hop_in``: publication → node callback) and the way out
   (``hop_out``: the node starts publishing a message's outputs → the packet is received; ``put``
@@ -260,6 +261,9 @@ def build_stream(duration_s: float, path: Path, batch: int = 1, seed: int = 1,
 
 def load_stream(path: str | Path) -> dict[str, Any]:
     return msgpack.unpackb(Path(path).read_bytes(), raw=False)
+
+
+INCLUSION_TOL_S = 0.005  # half the 10 ms SIRU sample period
 
 
 def sample_times(stream: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -855,7 +859,11 @@ def analyse(run: NodeRun, stream: dict[str, Any], warmup_s: float, measure_s: fl
         pt = d["rx_t"][pk][o]
         pr = d["rx_ns"][pk][o]
         suffix_min = np.minimum.accumulate(pr[::-1])[::-1]
-        j = np.searchsorted(pt, s_t - 1e-9, side="left")
+        # a packet includes a sample when its t is that sample's time or later; the t of a
+        # sample-triggered packet is the clock's *prediction* for the newest read (one period
+        # after the last released sample), which differs from the time reconstructed later by
+        # µs, so a packet is matched to a sample within half a sample period
+        j = np.searchsorted(pt, s_t - INCLUSION_TOL_S, side="left")
         has = j < pt.size
         rec = np.where(has, suffix_min[np.minimum(j, pt.size - 1)], 0)
         lat = rec - pub[v, s_msg]

@@ -54,6 +54,8 @@ CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
     "latency": ("tracker latency: configured_s, residual_s (estimated true − configured), "
                 "estimate_s, sigma_s [s]", lambda s: s.engine.latency_estimate()),
     "excluded": ("excluded gyro indices", lambda s: [int(i) for i, e in enumerate(s.engine.excluded) if e]),
+    "fdi": ("parity FDI: state, last ν, alarm and last isolation (docs/fdi.md)",
+            lambda s: s.engine.fdi.detail() if s.engine.fdi is not None else None),
     "flag_names": ("names of the flags set", lambda s: s.flag_names()),
 }
 
@@ -84,6 +86,13 @@ class PacketSpec:
             self.windows += 1
             if self.windows >= self.decimation:
                 self.windows = 0
+                return True
+            return False
+        if self.trigger == "sample":
+            # sample times are regular: schedule from the last packet, accepting a sample 5 % of
+            # a period early, so that jitter or an oscillator offset never skips a packet
+            if t >= self.next_t:
+                self.next_t = t + 0.95 * float(self.period_s or 0.0)
                 return True
             return False
         if t >= self.next_t:

@@ -156,3 +156,16 @@ def test_clock_pending_is_the_held_back_read():
     clk.push([10.03], [20000], dth[2:3], [0b10])  # repeats the last sample's tag
     assert clk.pending() is None
     assert 0.0099 < clk.period_s() < 0.0101
+
+
+@pytest.mark.parametrize("period,every", [(0.01, 1), (0.1, 10), (0.05, 5)])
+def test_sample_schedule_never_skips_on_jitter_or_offset(period, every):
+    """100 Hz samples with a 100 ppm slow oscillator and ±20 µs jitter: a sample-triggered packet
+    with period_s = k samples is published on exactly every k-th sample."""
+    from radical_rt.telemetry import PacketSpec
+
+    rng = np.random.default_rng(3)
+    t = 1000.0 + np.arange(5000) * 0.01 * (1 + 100e-6) + rng.uniform(-2e-5, 2e-5, 5000)
+    spec = PacketSpec("small", ["t"], period_s=period, trigger="sample")
+    due = np.array([spec.due(float(x)) for x in t])
+    assert np.array_equal(np.nonzero(due)[0], np.arange(0, 5000, every))
