@@ -266,6 +266,8 @@ def _a_exclude(a: dict, t: Target) -> dict:
 def _a_include(a: dict, t: Target) -> dict:
     e = t.sp.engine
     e.excluded[a["gyro"]] = False
+    if getattr(e, "fdi", None) is not None:  # an operator override also clears GYRO_<i>_FAILED
+        e.fdi.on_include(e, a["gyro"])
     return {"excluded": _excluded(e)}
 
 

@@ -65,6 +65,7 @@ class EngineState:
         self.last_valid_st: dict[int, float] = {}
         self.last_numeric = ""
         self.conv_var = np.full(ns - 3, np.inf)  # convergence thresholds², set from the table
+        self.locked_since = math.inf  # start of the current locked run of the time line [s]
 
     # ---------------------------------------------------------------- outputs
     def variances(self) -> np.ndarray:

@@ -229,6 +229,7 @@ class Engine(EngineState):
         self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
                                           self.q_params * self.acc_f[0], self.ws.a))
         self._reset_time_window()
+        self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
             self._queue_parity()
         while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
@@ -245,7 +246,20 @@ class Engine(EngineState):
         if self.acc_i[1] > 0 and not self.excluded.any():
             noise = self.acc_f[1] + self.acc_i[2] * self.si.quant_var
             self.parity_queue.append((self.t, self.par_y.copy(), self.par_t.copy(), noise))
+            if self.fdi is not None:  # fault detection on this sum's innovation (docs/fdi.md)
+                self.fdi.on_parity_sum(self, self.par_y, self.par_t, noise)
         self._reset_parity()
+
+    def _update_lock_latch(self) -> None:
+        """Time of the start of the current run of window closes with a locked time line
+        (σ_t ≤ timing_consider_s), inf while unlocked. The clock's σ_t can dip below the threshold
+        right after its first sawtooth wrap and rise again until the second one; the parity
+        calibrates λ, μ, du, dv only after ``parity_lag_s`` of uninterrupted lock, so the trackers
+        have calibrated the rotation direction first even when the lock happens in a slew."""
+        if self.timing_sigma() > self.si.timing_consider_s:
+            self.locked_since = math.inf
+        elif self.locked_since == math.inf:
+            self.locked_since = self.t
 
     def _parity_update(self, par_y, par_t, noise: float) -> None:
         """Parity update of one closed sum, linearized about the current estimate."""
@@ -258,7 +272,7 @@ class Engine(EngineState):
         self.Hbuf[:nr, :] = 0.0
         self.Hbuf[:nr, 3:] = self.H_par
         consider = None
-        if self.timing_sigma() > self.si.timing_consider_s:
+        if self.t - self.locked_since < self.si.parity_lag_s:
             # The trackers do not calibrate yet (time line not locked), so the direction of the
             # rotation is only as good as the prior calibration: the scale factors and
             # misalignments are consider states of the parity (their signal is kept in S).
@@ -269,8 +283,6 @@ class Engine(EngineState):
             self._scale_regressor_columns(self.Hbuf[:nr, 3:], kappa)
         self._vector_update("parity", self.Hbuf[:nr], self.z_par, np.full(nr, noise),
                             self.si.gate_parity_nis, consider)
-        if self.fdi is not None:
-            self.fdi.on_parity(self, noise)
 
     def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
         """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics.

@@ -90,6 +90,12 @@ class Params:
     gate_st_nis: float = 30.0  # χ²(3): P(false reject) ≈ 1.4e-6 per frame
     gate_parity_nis: float = 25.0  # χ²(1) = (5σ)²
     edit_enabled: bool = True
+    # Parity fault detection, isolation and reconfiguration (radical_rt/fdi.py, docs/fdi.md).
+    fdi_enabled: bool = True
+    fdi_false_alarm_per_hr: float = 1e-3  # design false-alarm rate of the parity detector [1/h]
+    fdi_guard_ratio: float = 4.0  # σ²/R above this: calibration-dominated, sequential tests held
+    fdi_isolation_error_prob: float = 1e-6  # isolation needs a log-likelihood margin ln(1/p)
+    fdi_auto_exclude: bool = True  # exclude an isolated gyro (and roll back its fault's effect)
     # Convergence: all 1σ below these thresholds → mode "converged".
     conv_b_deg_hr: float = 0.01
     conv_lam_ppm: float = 20.0

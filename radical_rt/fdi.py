@@ -1,0 +1,752 @@
+"""Gyro fault detection, isolation and reconfiguration (FDI) from the parity vector and the trackers.
+
+With four gyros the parity space is one-dimensional: the calibrated parity innovation tells *that*
+the four increments disagree, never *which* gyro is wrong (notes/rimu.md §12.2). The monitor
+therefore works in three stages (design and thresholds: docs/fdi.md):
+
+1. **Detection** on the calibrated parity innovation ν = z/σ of every 1-s sum as it closes (z from
+   the current calibration, σ² = hPhᵀ + R with the calibration uncertainty): an instantaneous
+   χ²(1) test, a persistence test (m consecutive χ² exceedances) and a two-sided CUSUM for small
+   or slowly growing faults. The thresholds follow from one design false-alarm rate per hour.
+   A convergence-aware guard holds
+   the sequential tests and raises the instantaneous threshold while the calibration part of σ²
+   dominates the measurement noise (cold start, covariance bumps).
+2. **Isolation** by a bank of attitude hypotheses started from a snapshot of the engine taken
+   before the estimated fault onset: H0 (all four gyros) and H_i (gyro i left out), each an
+   attitude propagation through the buffered gyro samples with the snapshot calibration, and a
+   Schmidt (consider) attitude filter on the buffered tracker samples whose considered states are
+   the snapshot's calibration, ST2 misalignment and latency. A fault in gyro i drives every
+   hypothesis that contains it along its own direction and leaves H_i consistent; the
+   log-likelihood ratio of the tracker innovations decides.
+3. **Reconfiguration** when H_i wins: gyro i is excluded (the engine's three-gyro path, no parity),
+   the calibration and its covariance are rolled back to the pre-fault snapshot (plus the
+   parameter process noise since), the attitude and its cross-covariance come from the winning
+   hypothesis filter, GYRO_<i>_FAILED is set and PARITY_ALARM cleared.
+
+The engine calls :class:`FaultMonitor` through four hooks (``on_gyro``, ``on_tracker``,
+``on_parity_sum``, ``on_window``); all decisions are made in ``on_window``, a deterministic point
+after the correction is folded in, so batch and streaming runs take identical decisions.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+from . import ud
+from .conventions import DEG_PER_HR, SIRU_PERIOD_S
+from .flags import GYRO_FAILED, Flag
+from .model import apply_body_rotation, parity_from_stats, refresh_axes, tracker_residual
+from .propagate import propagate_window
+from .rotation import quat_conj, quat_mul, rotvec_to_quat
+
+# Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §4).
+PERSIST_M = 3  # consecutive χ² exceedances of the persistence test
+CUSUM_SHIFT = 1.0  # design mean shift of the CUSUM, in units of σ (reference value k = shift/2)
+SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
+BUFFER_S = 600.0  # gyro and tracker history kept for the bank
+ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
+BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
+CHECK_PERIOD_S = 1.0  # bookkeeping period outside an alarm
+QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
+NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
+CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
+
+
+_ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
+
+# ----------------------------------------------------------------------------- thresholds
+_NORMAL = NormalDist()
+
+
+def chi2_1_isf(a: float) -> float:
+    """T with P(χ²₁ > T) = a (exact: χ²₁ = Z², so √T is the two-sided normal quantile)."""
+    return _NORMAL.inv_cdf(0.5 * a) ** 2
+
+
+def chi2_isf(p: float, dof: int) -> float:
+    """T with P(χ²_dof > T) ≈ p (Wilson–Hilferty; at p = 1e-4 it is 3.5 % high for dof = 3 and
+    within 0.4 % for dof ≥ 30; the bank uses dof = 3 × tracker samples)."""
+    z = -_NORMAL.inv_cdf(p)
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
+
+
+def cusum_arl0(h: float, k: float) -> float:
+    """Siegmund's approximation of the average run length (in samples) of the one-sided CUSUM
+    S ← max(0, S + ν − k), alarm S ≥ h, for ν ~ N(0, 1):  [e^{2kb} − 2kb − 1]/(2k²), b = h + 1.166."""
+    b = h + 1.166
+    x = 2.0 * k * b
+    return (math.expm1(x) - x) / (2.0 * k * k)
+
+
+def cusum_threshold(arl0: float, k: float) -> float:
+    """Smallest h ≥ 0 with :func:`cusum_arl0` (h, k) ≥ arl0 (bisection)."""
+    lo, hi = 0.0, 1.0
+    while cusum_arl0(hi, k) < arl0:
+        hi *= 2.0
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if cusum_arl0(mid, k) < arl0:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Detection thresholds derived from a false-alarm rate (docs/fdi.md §2)."""
+
+    rate_per_hr: float  # design false-alarm rate of the whole detector [1/h]
+    sums_per_hr: float  # parity sums per hour
+    t_inst: float  # ν² above this: instantaneous alarm
+    t_persist: float  # ν² above this PERSIST_M times in a row: persistence alarm
+    cusum_k: float  # CUSUM reference value [σ]
+    cusum_h: float  # CUSUM threshold [σ]
+
+
+def thresholds(rate_per_hr: float, sums_per_hr: float) -> Thresholds:
+    """Split the false-alarm budget equally over the instantaneous test, the persistence test and
+    the two one-sided CUSUMs, and invert each test's false-alarm probability:
+
+    * instantaneous: n_h·P(χ²₁ > T) = λ/3;
+    * persistence: n_h·α^m = λ/3 with α = P(χ²₁ > T_p) (sums nearly independent);
+    * CUSUM: each side's ARL0 (Siegmund) = 6·n_h/λ sums.
+    """
+    lam = max(float(rate_per_hr), 1e-300)
+    a_inst = min(lam / 3.0 / sums_per_hr, 0.5)
+    a_pers = min((lam / 3.0 / sums_per_hr) ** (1.0 / PERSIST_M), 0.5)
+    k = 0.5 * CUSUM_SHIFT
+    return Thresholds(lam, sums_per_hr, chi2_1_isf(a_inst), chi2_1_isf(a_pers),
+                      k, cusum_threshold(6.0 * sums_per_hr / lam, k))
+
+
+# ----------------------------------------------------------------------------- detection
+class ParityDetector:
+    """The three parity tests on the normalized innovations ν of consecutive sums.
+
+    :meth:`update` returns ``(test, t_onset)`` when a test fires (``"instant"``, ``"persistence"``
+    or ``"cusum"``; t_onset = start of the first sum of the evidence), else None.
+    """
+
+    def __init__(self, th: Thresholds, guard_ratio: float) -> None:
+        self.th, self.guard_ratio = th, guard_ratio
+        self.reset()
+
+    def reset(self) -> None:
+        self.s_pos = self.s_neg = 0.0
+        self.t_pos = self.t_neg = math.nan
+        self.run, self.t_run = 0, math.nan
+        self.quiet = 0
+        self.guarded = False
+
+    def update(self, nu: float, rho: float, t0: float) -> tuple[str, float] | None:
+        th = self.th
+        nu2 = nu * nu
+        self.guarded = rho > self.guard_ratio
+        if self.guarded:
+            # Calibration-dominated innovation variance: the sequential tests are held, and only
+            # evidence that is overwhelming against the calibration part too raises an alarm.
+            self.s_pos = self.s_neg = 0.0
+            self.run = 0
+            self.quiet = 0
+            return ("instant", t0) if nu2 > th.t_inst * rho / self.guard_ratio else None
+        hit = None
+        if nu2 > th.t_inst:
+            hit = ("instant", t0)
+        if nu2 > th.t_persist:
+            if self.run == 0:
+                self.t_run = t0
+            self.run += 1
+        else:
+            self.run = 0
+        if hit is None and self.run >= PERSIST_M:
+            hit = ("persistence", self.t_run)
+        s = max(0.0, self.s_pos + nu - th.cusum_k)
+        if self.s_pos == 0.0 and s > 0.0:
+            self.t_pos = t0
+        self.s_pos = s
+        s = max(0.0, self.s_neg - nu - th.cusum_k)
+        if self.s_neg == 0.0 and s > 0.0:
+            self.t_neg = t0
+        self.s_neg = s
+        if hit is None and self.s_pos >= th.cusum_h:
+            hit = ("cusum", self.t_pos)
+        if hit is None and self.s_neg >= th.cusum_h:
+            hit = ("cusum", self.t_neg)
+        calm = nu2 <= th.t_persist and max(self.s_pos, self.s_neg) < 0.5 * th.cusum_h
+        self.quiet = self.quiet + 1 if calm else 0
+        return hit
+
+
+# ----------------------------------------------------------------------------- buffers
+class _SampleBuffer:
+    """Recent gyro batches as the engine received them (references; the clock's output arrays are
+    never written again), time order. A list with a moving start and the batches' last times for
+    bisection."""
+
+    def __init__(self) -> None:
+        self.batches: list = []
+        self.ends: list[float] = []
+        self.i0 = 0
+
+    def clear(self) -> None:
+        self.batches, self.ends, self.i0 = [], [], 0
+
+    def append(self, arrays) -> None:
+        t = arrays[0]
+        if len(t):
+            self.batches.append(arrays)
+            self.ends.append(float(t[-1]))
+
+    def drop_before(self, t_min: float) -> None:
+        self.i0 = bisect.bisect_left(self.ends, t_min, self.i0)
+        if self.i0 > 4096 and self.i0 > len(self.batches) // 2:
+            del self.batches[:self.i0], self.ends[:self.i0]
+            self.i0 = 0
+
+    def take(self, t_after: float, t_upto: float):
+        """The samples with t_after < t ≤ t_upto as (t, dt, dθ, status, bridged, var_extra), or
+        None. The arrays are column views of one float and one int block, the memory layout of
+        the clock's batches, so the propagation kernel runs the engine's compiled specialization."""
+        parts = []
+        for k in range(bisect.bisect_right(self.ends, t_after, self.i0), len(self.batches)):
+            b = self.batches[k]
+            t = b[0]
+            if t[0] > t_upto:
+                break
+            i = int(np.searchsorted(t, t_after, side="right"))
+            j = int(np.searchsorted(t, t_upto, side="right"))
+            if j > i:
+                parts.append((i, j, b))
+        m = sum(j - i for i, j, _ in parts)
+        if m == 0:
+            return None
+        n = parts[0][2][2].shape[1]
+        fb, ib, bb = np.empty((m, 3 + n)), np.empty((m, 2), np.int64), np.empty(m, np.bool_)
+        k = 0
+        for i, j, (t, dt, dth, status, bridged, var_extra) in parts:
+            r = slice(k, k + j - i)
+            fb[r, 0], fb[r, 1], fb[r, 2], fb[r, 3:] = t[i:j], dt[i:j], var_extra[i:j], dth[i:j]
+            ib[r, 0], bb[r] = status[i:j], bridged[i:j]
+            k += j - i
+        return fb[:, 0], fb[:, 1], fb[:, 3:], ib[:, 0], bb, fb[:, 2]
+
+
+@dataclass
+class Snapshot:
+    """Engine state at a window close (after the correction), for the bank and the rollback."""
+
+    t: float  # time of the last propagated sample
+    trk_seq: int  # last tracker sample already applied
+    gen: tuple  # (cold starts, warm starts, attitude inits): a change invalidates the snapshot
+    q: np.ndarray
+    omega: np.ndarray
+    xp: np.ndarray
+    U: np.ndarray
+    d: np.ndarray
+    N: np.ndarray
+
+
+# ----------------------------------------------------------------------------- isolation bank
+class HypothesisBank:
+    """H0 (all gyros) and H_i (gyro i left out): open-loop attitude propagation with the snapshot
+    calibration and a Schmidt attitude filter on the tracker samples (considered: every parameter
+    state of the snapshot). Log-likelihoods of the tracker innovations decide (docs/fdi.md §3)."""
+
+    def __init__(self, eng, snap: Snapshot, t_alarm: float) -> None:
+        n, npar = eng.n_gyro, eng.ns - 3
+        self.snap, self.t_alarm = snap, t_alarm
+        self.gyros: list[int | None] = [None] + list(range(n))
+        self.masks = [np.zeros(n, np.bool_)] + [np.eye(n, dtype=np.bool_)[i] for i in range(n)]
+        nh = len(self.gyros)
+        self.xp = snap.xp.copy()
+        self.A, self.Minv, self.Gp = np.zeros((3, n)), np.eye(3), np.zeros((3, n))
+        N = snap.N.copy()
+        refresh_axes(self.xp, eng.geo.W, eng.geo.U, eng.geo.V, snap.N.copy(), self.A, self.Minv,
+                     self.Gp, N)
+        self.N_none = np.zeros((n, 0))
+        P = np.empty((eng.ns, eng.ns))
+        ud.ud_to_cov(snap.U, snap.d, P)
+        self.Ppp = P[3:, 3:].copy()
+        self.Ptt = [P[:3, :3].copy() for _ in range(nh)]
+        self.Ptp = [P[:3, 3:].copy() for _ in range(nh)]
+        self.q = [snap.q.copy() for _ in range(nh)]
+        self.omega = [snap.omega.copy() for _ in range(nh)]
+        self.ll = np.zeros(nh)  # log-likelihood (robust, up to a common constant)
+        self.nis = np.zeros(nh)  # capped NIS sums
+        self.k = 0  # tracker samples processed
+        self.t_last = snap.t  # last gyro sample propagated
+        self.trk_seq = snap.trk_seq
+        self.undetermined = np.zeros(nh, np.int64)
+        lay = eng.layout
+        self.phi_cols = slice(lay["phi2"].start - 3, lay["phi2"].stop - 3)
+        self.lat_col = lay["lat"].start - 3 if "lat" in lay else None
+        self.phi = self.xp[self.phi_cols].copy()
+        self.tau = float(self.xp[self.lat_col]) if self.lat_col is not None else 0.0
+        # propagate_window work arrays
+        self.Phi_aa, self.Phi_ap, self.Q_aa = np.eye(3), np.zeros((3, npar)), np.zeros((3, 3))
+        self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))
+        self.acc_i, self.acc_f, self.th_acc = np.zeros(4, np.int64), np.zeros(3), np.zeros(3)
+        self.r, self.H_att, self.H_phi = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
+        self.w4, self.dq = np.empty(4), np.empty(4)
+
+    # ------------------------------------------------------------------ propagation
+    def _propagate(self, eng, buf: _SampleBuffer, t_end: float) -> None:
+        data = buf.take(self.t_last, t_end)
+        if data is None:
+            return
+        t, dt, dth, status, bridged, var_extra = data
+        a, b = 0, len(t)
+        arw = eng.si.arw_var_per_s
+        for h, mask in enumerate(self.masks):
+            self.Phi_aa[:, :] = np.eye(3)
+            self.Phi_ap[:, :] = 0.0
+            self.Q_aa[:, :] = 0.0
+            self.acc_i[:] = 0
+            self.acc_f[:] = 0.0
+            self.th_acc[:] = 0.0
+            k = a
+            while k < b:
+                k, pflags = propagate_window(
+                    dth, dt, status, bridged, var_extra, k, mask, self.xp,
+                    self.q[h], self.A, eng.geo.W, eng.geo.U, eng.geo.V, self.Minv, self.Gp,
+                    self.N_none, self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t,
+                    self.acc_i, self.acc_f, self.th_acc, b - a + 1, arw, self.omega[h])
+                if pflags & 2:
+                    self.undetermined[h] += 1
+            F, G = self.Phi_aa, self.Phi_ap
+            Ptt, Ptp = self.Ptt[h], self.Ptp[h]
+            FPtp = F @ Ptp
+            GPpp = G @ self.Ppp
+            Ptt_new = F @ Ptt @ F.T + FPtp @ G.T + G @ FPtp.T + GPpp @ G.T + self.Q_aa
+            self.Ptt[h] = 0.5 * (Ptt_new + Ptt_new.T)
+            self.Ptp[h] = FPtp + GPpp
+        self.t_last = float(t[b - 1])
+
+    # ------------------------------------------------------------------ tracker update
+    def _tracker(self, eng, j: int, t_epoch: float, q_meas: np.ndarray, n_stars: int) -> None:
+        if j == 1:
+            R_nom, use_phi = eng.geo.R_st1_from_body, False
+        else:
+            R_nom, use_phi = eng.geo.R_st2_from_body_nom, True
+        sig = np.asarray(eng.si.st_sigma) * math.sqrt(eng.si.st_ref_stars / max(n_stars, 1))
+        sig_t = eng.timing_sigma()
+        gate = NIS_CAP
+        for h in range(len(self.masks)):
+            q_ep = self.q[h].copy()
+            tau = t_epoch - self.tau - self.t_last
+            if tau != 0.0:
+                apply_body_rotation(q_ep, self.omega[h] * tau, self.w4, self.dq)
+            tracker_residual(q_meas, q_ep, R_nom, self.phi, use_phi, self.r, self.H_att,
+                             self.H_phi)
+            Ha = self.H_att
+            Hp = np.zeros((3, self.Ppp.shape[0]))
+            if use_phi:
+                Hp[:, self.phi_cols] = self.H_phi
+            if self.lat_col is not None:
+                Hp[:, self.lat_col] = -(Ha @ self.omega[h])
+            v = R_nom @ self.omega[h]
+            R = np.diag(sig * sig) + sig_t * sig_t * np.outer(v, v)
+            Ptt, Ptp = self.Ptt[h], self.Ptp[h]
+            PHt = Ptt @ Ha.T + Ptp @ Hp.T  # cov(δθ, Hx)
+            HpPpp = Hp @ self.Ppp
+            S = Ha @ PHt + Hp @ (Ptp.T @ Ha.T) + HpPpp @ Hp.T + R
+            S = 0.5 * (S + S.T)
+            try:
+                Sinv_r = np.linalg.solve(S, self.r)
+                sign, logdet = np.linalg.slogdet(S)
+            except np.linalg.LinAlgError:
+                self.ll[h] = -math.inf
+                continue
+            nis = float(self.r @ Sinv_r)
+            self.nis[h] += min(nis, gate)
+            self.ll[h] -= 0.5 * (min(nis, gate) + logdet)
+            if not nis <= gate:
+                continue  # edited like the engine would: no correction
+            K = np.linalg.solve(S, PHt.T).T  # (3, 3) gain of the attitude states
+            dth = K @ self.r
+            q = quat_mul(quat_conj(rotvec_to_quat(dth)), self.q[h])
+            self.q[h] = q / (np.linalg.norm(q) * (1.0 if q[3] >= 0 else -1.0))
+            Ptt_new = Ptt - K @ PHt.T
+            self.Ptt[h] = 0.5 * (Ptt_new + Ptt_new.T)
+            self.Ptp[h] = Ptp - K @ (Ha @ Ptp + HpPpp)
+        self.k += 1
+
+    # ------------------------------------------------------------------ driver and decision
+    def advance(self, eng, gbuf: _SampleBuffer, trk: deque, t_upto: float) -> None:
+        """Process the buffered trackers (seq > last) with epoch ≤ t_upto and the gyro samples up
+        to the engine's last propagated sample, in the engine's order."""
+        # sequence numbers are consecutive in the deque: index the first one not yet processed
+        k = max(0, self.trk_seq + 1 - trk[0][0]) if trk else 0
+        while k < len(trk):
+            seq, epoch, j, q_meas, n_stars = trk[k]
+            k += 1
+            if epoch > t_upto:
+                break
+            self._propagate(eng, gbuf, epoch)
+            self._tracker(eng, j, epoch, q_meas, n_stars)
+            self.trk_seq = seq
+        self._propagate(eng, gbuf, eng.t)
+
+    def decision(self, llr_min: float) -> tuple[str, int | None, float]:
+        """("isolate", gyro, margin), ("none", None, margin) when H0 wins, or ("wait", …)."""
+        if self.k == 0:
+            return "wait", None, 0.0
+        order = np.argsort(-self.ll, kind="stable")
+        best, second = int(order[0]), int(order[1])
+        margin = float(self.ll[best] - self.ll[second])
+        if margin < llr_min:
+            return "wait", None, margin
+        if self.nis[best] > chi2_isf(CONSISTENCY_P, 3 * self.k):
+            return "wait", None, margin  # even the best hypothesis does not explain the trackers
+        gyro = self.gyros[best]
+        return ("none" if gyro is None else "isolate"), gyro, margin
+
+    def summary(self) -> dict[str, Any]:
+        best = float(np.max(self.ll)) if self.k else 0.0
+        return {"t_start": self.snap.t, "trackers": self.k,
+                "llr": {("all" if g is None else f"ex{g}"): float(self.ll[h] - best)
+                        for h, g in enumerate(self.gyros)},
+                "nis_mean": {("all" if g is None else f"ex{g}"): float(self.nis[h] / max(self.k, 1))
+                             for h, g in enumerate(self.gyros)}}
+
+
+# ----------------------------------------------------------------------------- the monitor
+class FaultMonitor:
+    """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
+    (``fdi_*``, :mod:`radical_rt.params`); defaults apply when a name is missing."""
+
+    def __init__(self) -> None:
+        self._th_key = None
+        self.det: ParityDetector | None = None
+        self.gbuf = _SampleBuffer()
+        self.trk: deque = deque()
+        self.trk_seq = 0
+        self.snaps: deque[Snapshot] = deque()
+        self.bank: HypothesisBank | None = None
+        self.state = "waiting"
+        self.gen = None
+        self.alarm: dict[str, Any] | None = None
+        self.last_nu = math.nan
+        self.last_rho = math.nan
+        self.alarms: list[dict[str, Any]] = []  # every alarm raised (time, test, onset estimate)
+        self.isolations: list[dict[str, Any]] = []  # every isolation decision
+        self.parity_log: deque = deque()  # (t0, z) of recent sums, for the fault-size estimate
+        self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
+        self._next_check = -math.inf
+        self.failed_by_fdi: set[int] = set()
+        self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
+        self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
+                       "timeouts": 0}
+
+    # ------------------------------------------------------------------ configuration
+    @staticmethod
+    def _p(eng, name: str, default):
+        return getattr(eng.table.active, "fdi_" + name, default)
+
+    def enabled(self, eng) -> bool:
+        return bool(self._p(eng, "enabled", True))
+
+    def _detector(self, eng) -> ParityDetector:
+        t_sum = eng.si.parity_window * SIRU_PERIOD_S
+        key = (float(self._p(eng, "false_alarm_per_hr", 1e-3)), t_sum,
+               float(self._p(eng, "guard_ratio", 4.0)))
+        if key != self._th_key or self.det is None:
+            self.det = ParityDetector(thresholds(key[0], 3600.0 / t_sum), key[2])
+            self._th_key = key
+        return self.det
+
+    def llr_threshold(self, eng) -> float:
+        p = float(self._p(eng, "isolation_error_prob", 1e-6))
+        return -math.log(max(min(p, 0.5), 1e-300))
+
+    # ------------------------------------------------------------------ hooks (engine → FDI)
+    def on_gyro(self, t, dt, dtheta, status, bridged, var_extra) -> None:
+        """Every gyro batch the engine receives (before propagation)."""
+        self.gbuf.append((t, dt, dtheta, status, bridged, var_extra))
+
+    def on_tracker(self, j: int, t_epoch: float, q_meas, n_stars: int) -> None:
+        """Every valid tracker sample the engine receives (before its update)."""
+        self.trk_seq += 1
+        self.trk.append((self.trk_seq, t_epoch, j, q_meas, n_stars))
+
+    def on_parity_sum(self, eng, par_y, par_t, noise: float) -> None:
+        """Every closed parity sum (before it waits for its lagged update): the calibrated
+        innovation z = Nᵀĉ − h·dx with the current estimate, and σ² = h P hᵀ + R from the UD
+        factors (all states, considered ones included)."""
+        if not self.enabled(eng):
+            return
+        n, ns = eng.n_gyro, eng.ns
+        if self._z is None or self._H.shape[1] != ns - 3:
+            self._z, self._H = np.zeros(1), np.zeros((1, ns - 3))
+            self._th, self._Phi, self._h = np.zeros(3), np.zeros((3, 5 * n)), np.zeros(ns)
+        parity_from_stats(par_y, par_t, eng.xp, eng.A, eng.Gp, eng.N, eng.geo.W, eng.geo.U,
+                          eng.geo.V, self._z, self._H, self._th, self._Phi)
+        h = self._h
+        h[3:] = self._H[0]
+        f = eng.U.T @ h
+        s2 = float(eng.d @ (f * f)) + noise
+        z = float(self._z[0] - h @ eng.dx)
+        if not (s2 > 0.0 and noise > 0.0 and math.isfinite(z)):
+            return
+        det = self._detector(eng)
+        nu, rho = z / math.sqrt(s2), s2 / noise
+        t1 = float(eng.t)
+        t0 = t1 - float(eng.acc_f[2])  # the sum's first sample (duration of the sum)
+        self.counts["sums"] += 1
+        self.last_nu, self.last_rho = nu, rho
+        self.parity_log.append((t0, z))
+        while self.parity_log and self.parity_log[0][0] < t1 - BUFFER_S:
+            self.parity_log.popleft()
+        hit = det.update(nu, rho, t0)
+        if hit is not None and self.bank is None and self.state in ("monitoring", "alarm"):
+            self._raise_alarm(eng, hit[0], hit[1], nu, rho)
+
+    def on_include(self, eng, gyro: int) -> None:
+        """The operator's include_gyro: the gyro is trusted again (its GYRO_<i>_FAILED clears now;
+        monitoring resumes at the next window with fresh statistics)."""
+        eng.flags &= ~int(GYRO_FAILED[gyro])
+        self.failed_by_fdi.discard(int(gyro))
+        self.flagged_only.discard(int(gyro))
+
+    def on_window(self, eng, t: float) -> None:
+        """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
+        an alarm the bookkeeping runs once per second of engine time (it only watches for
+        restarts, exclusions and the snapshot period)."""
+        if self.state != "alarm" and eng.t < self._next_check:
+            return
+        self._next_check = eng.t + CHECK_PERIOD_S
+        self._check_gen(eng)
+        self._sync_failed_flags(eng)
+        if not self.enabled(eng):
+            self._stop(eng, "disabled")
+            self.state = "disabled"
+            self.gbuf.clear()  # nothing is kept while disabled
+            self.trk.clear()
+            self.snaps.clear()
+            return
+        if eng.excluded.any():
+            if self.state != "three-gyro":
+                self._stop(eng, "three-gyro")
+            self.state = "three-gyro"  # no parity with three gyros
+        elif self.state in ("three-gyro", "waiting", "disabled") or (
+                self.state == "flagged" and not self.flagged_only):
+            self.state = "monitoring"
+            if self.det is not None:
+                self.det.reset()
+        if not self.snaps or eng.t - self.snaps[-1].t >= SNAPSHOT_PERIOD_S:
+            self._trim(eng)
+            self._snapshot(eng)
+        if self.state != "alarm":
+            return
+        if self.bank is not None:
+            self.bank.advance(eng, self.gbuf, self.trk, t)
+            verdict, gyro, margin = self.bank.decision(self.llr_threshold(eng))
+            if eng.t <= self.bank.t_alarm:
+                verdict = "wait"  # PARITY_ALARM is published for at least one window first
+            if verdict == "isolate":
+                self._isolate(eng, gyro, margin)
+                return
+            ended = None
+            if verdict == "none":
+                ended = "unconfirmed"  # the trackers agree with all four gyros
+            elif eng.t - self.bank.t_alarm > BANK_MAX_S:
+                ended = "timeout"
+            if ended is not None:
+                self.counts[ended if ended == "unconfirmed" else "timeouts"] += 1
+                self.alarm["bank"] = ended
+                self.alarm["bank_summary"] = self.bank.summary()
+                self.bank = None
+                self.det.reset()  # a new bank needs fresh evidence (and a new onset estimate)
+        if self.bank is None and self.det is not None and self.det.quiet >= QUIET_SUMS:
+            eng.flags &= ~int(Flag.PARITY_ALARM)
+            self.alarm["t_cleared"] = float(eng.t)
+            self.state = "monitoring"
+
+    # ------------------------------------------------------------------ internals
+    def _check_gen(self, eng) -> None:
+        gen = (eng.counters["cold_starts"], eng.counters["warm_starts"], eng.counters["att_inits"])
+        if gen != self.gen:  # a new attitude (start, gap): history and hypotheses are void
+            self._restart(eng, gen)
+
+    def _restart(self, eng, gen) -> None:
+        self.gen = gen
+        self.snaps.clear()
+        self.bank = None
+        self.gbuf.clear()
+        self.trk.clear()
+        if self.det is not None:
+            self.det.reset()
+        eng.flags &= ~int(Flag.PARITY_ALARM)
+        self.state = "monitoring" if eng.att_valid else "waiting"
+
+    def _stop(self, eng, why: str) -> None:
+        if self.bank is not None and self.alarm is not None:
+            self.alarm["bank"] = why
+        self.bank = None
+        eng.flags &= ~int(Flag.PARITY_ALARM)
+
+    def _sync_failed_flags(self, eng) -> None:
+        """GYRO_<i>_FAILED follows the exclusion: an operator's include_gyro clears it."""
+        if not (int(eng.flags) & _ALL_FAILED or self.flagged_only or self.failed_by_fdi):
+            return
+        for i, bit in enumerate(GYRO_FAILED[:eng.n_gyro]):
+            if eng.excluded[i]:
+                self.flagged_only.discard(i)
+            if eng.flags & bit and not eng.excluded[i] and i not in self.flagged_only:
+                eng.flags &= ~int(bit)
+                self.failed_by_fdi.discard(i)
+            elif eng.flags & bit:
+                self.failed_by_fdi.add(i)  # e.g. restored from a checkpoint
+
+    def _trim(self, eng) -> None:
+        t_min = eng.t - BUFFER_S
+        if self.bank is not None:
+            t_min = min(t_min, self.bank.t_last)
+        while self.snaps and self.snaps[0].t < t_min and len(self.snaps) > 1:
+            self.snaps.popleft()
+        t_keep = min(t_min, self.snaps[0].t) if self.snaps else t_min
+        self.gbuf.drop_before(t_keep)
+        keep_seq = self.snaps[0].trk_seq if self.snaps else self.trk_seq
+        if self.bank is not None:
+            keep_seq = min(keep_seq, self.bank.trk_seq)
+        while self.trk and self.trk[0][0] <= keep_seq:
+            self.trk.popleft()
+
+    def _snapshot(self, eng) -> None:
+        if not eng.att_valid or not np.isfinite(eng.t):
+            return
+        self.snaps.append(Snapshot(
+            t=float(eng.t), trk_seq=self.trk_seq, gen=self.gen, q=eng.q.copy(),
+            omega=eng.omega.copy(), xp=eng.xp.copy(), U=eng.U.copy(), d=eng.d.copy(),
+            N=eng.N.copy()))
+
+    def _raise_alarm(self, eng, test: str, t_onset: float, nu: float, rho: float) -> None:
+        self._check_gen(eng)
+        first = self.state != "alarm"
+        eng.flags |= Flag.PARITY_ALARM
+        self.state = "alarm"
+        # The bank starts from the latest snapshot before the onset estimate minus a margin. A CUSUM
+        # excursion starts late for a slowly growing fault (only once its mean exceeds k), so
+        # there the margin is the excursion's own length.
+        margin = ONSET_MARGIN_S
+        if test == "cusum":
+            margin = max(margin, eng.t - t_onset)
+        snap = None
+        for s in self.snaps:
+            if s.t <= t_onset - margin:
+                snap = s
+        if snap is None and self.snaps:
+            snap = self.snaps[0]
+        rec = {"t_alarm": float(eng.t), "test": test, "t_onset_est": float(t_onset),
+               "nu": float(nu), "rho": float(rho), "bank": "running" if snap else "no snapshot",
+               "t_snapshot": float(snap.t) if snap else None}
+        if first:
+            self.counts["alarms"] += 1
+            self.alarms.append(rec)
+            self.alarm = rec
+        else:  # a new trigger during an alarm whose bank ended: a fresh bank, same alarm
+            self.alarm.update({k: v for k, v in rec.items() if k != "t_alarm"})
+        if snap is not None:
+            self.bank = HypothesisBank(eng, snap, float(eng.t))
+            self.counts["banks"] += 1
+
+    def _fault_size(self, eng, gyro: int, t_onset: float) -> dict[str, float]:
+        """Size of the fault on ``gyro`` from the parity innovations of the sums that started after
+        the onset estimate: z ≈ p_i f T (T the sum length)."""
+        zs = np.array([z for t0, z in self.parity_log if t0 >= t_onset - 1e-9])
+        t_sum = eng.si.parity_window * SIRU_PERIOD_S
+        p = float(self.bank.snap.N[gyro, 0])
+        if zs.size == 0 or p == 0.0:
+            return {}
+        return {"rate_mean_deg_hr": float(zs.mean() / (p * t_sum) / DEG_PER_HR),
+                "rate_rms_deg_hr": float(np.sqrt(np.mean(zs**2)) / (abs(p) * t_sum) / DEG_PER_HR),
+                "sums": int(zs.size)}
+
+    def _isolate(self, eng, gyro: int, margin: float) -> None:
+        bank = self.bank
+        h = bank.gyros.index(gyro)
+        rec = {"gyro": int(gyro), "t_isolated": float(eng.t), "t_alarm": self.alarm["t_alarm"],
+               "t_onset_est": self.alarm["t_onset_est"], "test": self.alarm["test"],
+               "llr_margin": margin, "t_snapshot": bank.snap.t, "trackers": bank.k,
+               "auto_exclude": bool(self._p(eng, "auto_exclude", True)),
+               "fault_size": self._fault_size(eng, gyro, self.alarm["t_onset_est"]),
+               "bank": bank.summary()}
+        self.isolations.append(rec)
+        self.counts["isolations"] += 1
+        self.alarm["bank"] = f"isolated gyro {gyro}"
+        eng.flags |= GYRO_FAILED[gyro]
+        self.failed_by_fdi.add(int(gyro))
+        self.bank = None
+        if rec["auto_exclude"] and eng.n_gyro - int(eng.excluded.sum()) - 1 >= 3:
+            self._reconfigure(eng, bank, h, gyro)
+            eng.flags &= ~int(Flag.PARITY_ALARM)
+            self.state = "three-gyro"
+        else:  # flagged only: PARITY_ALARM stays, no new bank until the operator acts
+            self.flagged_only.add(int(gyro))
+            self.state = "flagged"
+
+    def _reconfigure(self, eng, bank: HypothesisBank, h: int, gyro: int) -> None:
+        """Exclude ``gyro``; calibration and its covariance back to the pre-fault snapshot (plus the
+        parameter process noise since), attitude and cross-covariance from the winning filter."""
+        eng.excluded[gyro] = True
+        ns = eng.ns
+        P = np.empty((ns, ns))
+        P[:3, :3] = bank.Ptt[h]
+        P[:3, 3:] = bank.Ptp[h]
+        P[3:, :3] = bank.Ptp[h].T
+        P[3:, 3:] = bank.Ppp
+        U, d = np.eye(ns), np.ones(ns)
+        if ud.factor_ud(P, U, d) == 0 and np.all(d > 0):
+            eng.U[:, :] = U
+            eng.d[:] = d
+            eng.xp[:] = bank.xp
+            eng.q[:] = bank.q[h]
+            eng.omega[:] = bank.omega[h]
+            dt = max(eng.t - bank.snap.t, 0.0)
+            eng._check(ud.add_diagonal_noise(eng.U, eng.d, eng.param_idx,
+                                             eng.q_params * dt, eng.ws.a))
+        else:  # keep the engine's own covariance, restart the attitude from the trackers
+            eng.warm_start(bump=False)
+        eng.dx[:] = 0.0
+        eng.parity_queue.clear()
+        eng._reset_parity()
+        eng._refresh()
+        self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
+
+    # ------------------------------------------------------------------ outputs
+    def detail(self) -> dict[str, Any]:
+        """Plain-type state for the ``fault`` message detail and diagnostics."""
+        d: dict[str, Any] = {"state": self.state, "failed": sorted(self.failed_by_fdi)}
+        if self.det is not None:
+            d.update({"nu_last": _f(self.last_nu), "rho_last": _f(self.last_rho),
+                      "cusum": [self.det.s_pos, self.det.s_neg], "guarded": self.det.guarded,
+                      "thresholds": {"inst": self.det.th.t_inst, "persist": self.det.th.t_persist,
+                                     "cusum_h": self.det.th.cusum_h}})
+        if self.alarm is not None:
+            d["alarm"] = dict(self.alarm)
+        if self.bank is not None:
+            d["bank"] = self.bank.summary()
+        if self.isolations:
+            last = self.isolations[-1]
+            d["last_isolation"] = {k: last[k] for k in (
+                "gyro", "t_onset_est", "t_alarm", "t_isolated", "test", "llr_margin",
+                "fault_size")}
+        d["counts"] = dict(self.counts)
+        return d
+
+
+def _f(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+__all__ = ["FaultMonitor", "HypothesisBank", "ParityDetector", "Thresholds", "chi2_1_isf",
+           "chi2_isf", "cusum_arl0", "cusum_threshold", "thresholds"]
