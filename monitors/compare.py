@@ -39,7 +39,7 @@ def load_truth(path: str | Path) -> dict[str, list[float]]:
 def z_scores(summary: dict[str, Any], truth: dict[str, list[float]]) -> dict[str, list[float]]:
     """(estimate − truth)/σ per group and element (paper units on both sides)."""
     return {g: [(e - t) / s if s > 0 else math.nan
-                for e, t, s in zip(summary["estimate"][g], truth[g], summary["sigma"][g])]
+                for e, t, s in zip(summary["estimate"][g], truth[g], summary["sigma"][g], strict=True)]
             for g in ORDER}
 
 
@@ -50,7 +50,7 @@ def table(truth: dict[str, list[float]], runs: list[tuple[str, dict[str, Any]]])
     zs = [z_scores(s, truth) for _, s in runs]
     for g in ORDER:
         for i, name in enumerate(element_names(g, len(truth[g]))):
-            cells = [f"{z[g][i]:+.2f} | {s['sigma'][g][i]:.3g}" for z, (_, s) in zip(zs, runs)]
+            cells = [f"{z[g][i]:+.2f} | {s['sigma'][g][i]:.3g}" for z, (_, s) in zip(zs, runs, strict=True)]
             lines.append(f"| {GROUP_LABELS[g]} {name} | {PAPER_UNITS[g]} | " + " | ".join(cells) + " |")
     flat = [[v for g in ORDER for v in z[g]] for z in zs]
     lines.append("| max \\|error/σ\\| | | " + " | ".join(
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         truth = load_truth(a.archive)
-        runs = [(lab, json.loads(Path(p).read_text())) for lab, p in zip(labels, a.summaries)]
+        runs = [(lab, json.loads(Path(p).read_text())) for lab, p in zip(labels, a.summaries, strict=True)]
     except (OSError, ArchiveError, json.JSONDecodeError) as exc:
         print(f"compare: {exc}", file=sys.stderr)
         return 2
