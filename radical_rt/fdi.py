@@ -416,7 +416,8 @@ class HypothesisBank:
                 "llr": {("all" if g is None else f"ex{g}"): float(self.ll[h] - best)
                         for h, g in enumerate(self.gyros)},
                 "nis_mean": {("all" if g is None else f"ex{g}"): float(self.nis[h] / max(self.k, 1))
-                             for h, g in enumerate(self.gyros)}}
+                             for h, g in enumerate(self.gyros)},
+                "undetermined": [int(x) for x in self.undetermined]}
 
 
 # ----------------------------------------------------------------------------- the monitor
