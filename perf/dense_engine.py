@@ -1,7 +1,8 @@
 """Dense-covariance reference of the RADICAL engine (same filter, P instead of U, d).
 
-:class:`DenseEngine` subclasses :class:`radical_rt.filter.Engine` and replaces only the
-covariance operations; models, Jacobians, propagation, parity statistics, regressor reliability,
+:class:`DenseEngine` subclasses :class:`radical_rt.filter.Engine` and overrides only the
+engine's covariance primitives (``_cov_reset_attitude``, ``_cov_add_diagonal``, ``_cov_scale``,
+``_cov_time_update``, ``_cov_block``), ``_vector_update`` and ``variances``/``contract_params``; models, Jacobians, propagation, parity statistics, regressor reliability,
 gating, consider logic, corrections and the order of every operation are the engine's own. The
 covariance P (ns, ns) is the single source of truth:
 
@@ -48,10 +49,9 @@ import numpy as np
 
 from radical_rt import ud
 from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK, kernel
-from radical_rt.engine_state import _psl
 from radical_rt.filter import Engine
 from radical_rt.flags import Flag
-from radical_rt.model import contract_from_internal, quat_from_tracker
+from radical_rt.model import contract_from_internal
 
 # ------------------------------------------------------------------------------------- kernels
 
@@ -249,79 +249,22 @@ class DenseEngine(Engine):
         super().set_state(state)
         self._from_ud()
 
-    def warm_start(self, bump: bool = True) -> None:
-        self._dirty(dense_reset_leading(self.P, 3, np.eye(3)))
-        if bump:
-            self.bump(dict(self.si.bump_sigma), self.si.bump_mode)
-        self._begin_attitude_init()
-        self.counters["warm_starts"] += 1
+    # ---------------------------------------------------------- covariance primitives
+    def _cov_reset_attitude(self, P0) -> None:
+        self._dirty(dense_reset_leading(self.P, 3, np.asarray(P0, float)))
 
-    def bump(self, sigma, mode: str = "add") -> None:
-        if mode == "add":
-            idx, c = [], []
-            for group, values in sigma.items():
-                sl = self.layout[group]
-                for k, v in enumerate(values):
-                    idx.append(sl.start + k)
-                    c.append(float(v) ** 2)
-            self._dirty(dense_add_diagonal(self.P, np.asarray(idx, np.int64), np.asarray(c)))
-        else:
-            var = self.variances()
-            s = np.ones(self.ns)
-            for group, values in sigma.items():
-                sl = self.layout[group]
-                s[sl] = np.sqrt(1.0 + np.asarray(values, float) ** 2 / var[sl])
-            self.P *= np.outer(s, s)
-            self._dirty()
-        self.counters["bumps"] += 1
+    def _cov_add_diagonal(self, idx, c) -> None:
+        self._dirty(dense_add_diagonal(self.P, idx, c))
 
-    def _init_attitude(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
-        if j == 2 and t_epoch - self.last_valid_st.get(1, -math.inf) < self.si.st_stale_s:
-            return False
-        R_nom, use_phi = self._mounting(j)
-        phi = self.xp[_psl(self.layout, "phi2")]
-        self.q[:] = quat_from_tracker(np.asarray(q_meas, float), R_nom, phi, use_phi)
-        sig_body = np.abs(R_nom.T) @ (self._tracker_sigma(n_stars) * self.si.att_init_scale)
-        P0 = np.diag(sig_body**2)
-        if use_phi:
-            P0 += np.diag(np.diag(self.P)[self.layout["phi2"]])
-        self._dirty(dense_reset_leading(self.P, 3, P0))
-        self.att_valid = True
-        self.t = t_epoch
-        self.mode = "converging"
-        self.flags &= ~int(Flag.GYRO_GAP)
-        self._reset_window()
-        self.counters["att_inits"] += 1
-        return True
+    def _cov_scale(self, s) -> None:
+        self.P *= np.outer(s, s)
+        self._dirty()
 
-    # ---------------------------------------------------------- time update, regressor
-    def _regressor_reliability(self, theta, Phi_g, noise_var: float) -> float:
-        th2 = float(theta @ theta)
-        if th2 <= 0.0:
-            return 0.0
-        g = slice(3, 3 + 5 * self.n_gyro)
-        Pgg = self.P[g, g]
-        v = Phi_g.T @ theta
-        s_par = (float(v @ Pgg @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
-        return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
-
-    def _close_window(self) -> None:
-        if self.acc_i[0] == 0:
-            return
-        n = self.n_gyro
-        kappa = self._regressor_reliability(
-            self.th_acc, self.Phi_ap[:, :5 * n],
-            self.si.arw_var_per_s * self.acc_f[0] + self.si.quant_var)
-        self.kappa_last[0] = kappa
-        if kappa < 1.0:
-            self._scale_regressor_columns(self.Phi_ap, kappa)
+    def _cov_time_update(self) -> None:
         self._dirty(dense_time_update(self.P, 3, self.Phi_aa, self.Phi_ap, self.Q_aa, self._T))
-        self._dirty(dense_add_diagonal(self.P, self.param_idx, self.q_params * self.acc_f[0]))
-        self._reset_time_window()
-        if self.acc_i[1] >= self.si.parity_window:
-            self._queue_parity()
-        while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
-            self._parity_update(*self.parity_queue.popleft()[1:])
+
+    def _cov_block(self, sl: slice) -> np.ndarray:
+        return self.P[sl, sl]
 
     # ---------------------------------------------------------- measurement update
     def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
@@ -347,25 +290,6 @@ class DenseEngine(Engine):
     def contract_params(self) -> tuple[np.ndarray, np.ndarray]:
         xc, J = contract_from_internal(self.xp, self.n_gyro)
         return xc, J @ self.P[3:, 3:] @ J.T
-
-    def update_mode(self, t: float) -> None:
-        for j, bit in ((1, Flag.ST1_STALE), (2, Flag.ST2_STALE)):
-            if t - self.last_valid_st.get(j, -math.inf) > self.si.st_stale_s:
-                self.flags |= bit
-            else:
-                self.flags &= ~int(bit)
-        if not self.att_valid:
-            self.mode = "init"
-            return
-        conv = bool((np.diag(self.P)[3:] <= self.conv_var).all())
-        if conv:
-            self.flags &= ~int(Flag.NOT_CONVERGED)
-        else:
-            self.flags |= Flag.NOT_CONVERGED
-        if self.excluded.any() or self.flags & Flag.NUMERIC:
-            self.mode = "degraded"
-        else:
-            self.mode = "converged" if conv else "converging"
 
     def _numeric(self, why: str) -> None:
         self.flags |= Flag.NUMERIC

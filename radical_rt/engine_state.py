@@ -108,8 +108,7 @@ class EngineState:
         if not self.att_valid:
             self.mode = "init"
             return
-        ud.variances(self.U, self.d, self.ws.var)
-        conv = bool((self.ws.var[3:] <= self.conv_var).all())
+        conv = bool((self.variances()[3:] <= self.conv_var).all())
         if conv:
             self.flags &= ~int(Flag.NOT_CONVERGED)
         else:

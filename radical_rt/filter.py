@@ -76,8 +76,7 @@ class Engine(EngineState):
 
     def warm_start(self, bump: bool = True) -> None:
         """Reset attitude and its cross-covariance, keep the parameter UD factors; bump them."""
-        status = ud.reset_leading_block(self.U, self.d, 3, np.eye(3), self.ws.struct)
-        self._check(status)
+        self._cov_reset_attitude(np.eye(3))
         if bump:
             self.bump(dict(self.si.bump_sigma), self.si.bump_mode)
         self._begin_attitude_init()
@@ -97,16 +96,40 @@ class Engine(EngineState):
                 for k, v in enumerate(values):
                     idx.append(sl.start + k)
                     c.append(float(v) ** 2)
-            self._check(ud.add_diagonal_noise(self.U, self.d, np.asarray(idx, np.int64),
-                                              np.asarray(c), self.ws.a))
+            self._cov_add_diagonal(np.asarray(idx, np.int64), np.asarray(c))
         else:  # same diagonal increase, applied as σ scaling so correlations are kept
             var = self.variances()
             s = np.ones(self.ns)
             for group, values in sigma.items():
                 sl = self.layout[group]
                 s[sl] = np.sqrt(1.0 + np.asarray(values, float) ** 2 / var[sl])
-            self._check(ud.scale_states(self.U, self.d, s))
+            self._cov_scale(s)
         self.counters["bumps"] += 1
+
+    # ---------------------------------------------------------------- covariance primitives
+    # Every covariance operation of the engine goes through these (UD factors here; the dense
+    # reference of perf/dense_engine.py overrides just these and _vector_update).
+    def _cov_reset_attitude(self, P0) -> None:
+        """Attitude covariance ← P0 (3, 3), attitude cross-covariances ← 0, the rest kept."""
+        self._check(ud.reset_leading_block(self.U, self.d, 3, P0, self.ws.struct))
+
+    def _cov_add_diagonal(self, idx, c) -> None:
+        """P[idx_k, idx_k] += c_k (process noise, additive bump)."""
+        self._check(ud.add_diagonal_noise(self.U, self.d, idx, c, self.ws.a))
+
+    def _cov_scale(self, s) -> None:
+        """P ← diag(s) P diag(s)."""
+        self._check(ud.scale_states(self.U, self.d, s))
+
+    def _cov_time_update(self) -> None:
+        """P ← Φ P Φᵀ + Q with Φ = [[Φ_aa, Φ_ap], [0, I]], Q = diag(Q_aa, 0) (window accumulators)."""
+        self._check(ud.structured_time_update(self.U, self.d, 3, self.Phi_aa, self.Phi_ap,
+                                              self.Q_aa, self.ws.struct))
+
+    def _cov_block(self, sl: slice) -> np.ndarray:
+        """P[sl, sl] (formed from the factors)."""
+        Us = self.U[sl, :]
+        return (Us * self.d) @ Us.T
 
     def _begin_attitude_init(self) -> None:
         self.mode = "init"
@@ -190,10 +213,7 @@ class Engine(EngineState):
         th2 = float(theta @ theta)
         if th2 <= 0.0:
             return 0.0
-        n = self.n_gyro
-        g = slice(3, 3 + 5 * n)
-        Ug = self.U[g, :]
-        Pgg = (Ug * self.d) @ Ug.T
+        Pgg = self._cov_block(slice(3, 3 + 5 * self.n_gyro))
         v = Phi_g.T @ theta
         s_par = (float(v @ Pgg @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
         return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
@@ -224,10 +244,8 @@ class Engine(EngineState):
         self.kappa_last[0] = kappa
         if kappa < 1.0:
             self._scale_regressor_columns(self.Phi_ap, kappa)
-        self._check(ud.structured_time_update(self.U, self.d, 3, self.Phi_aa, self.Phi_ap,
-                                              self.Q_aa, self.ws.struct))
-        self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
-                                          self.q_params * self.acc_f[0], self.ws.a))
+        self._cov_time_update()
+        self._cov_add_diagonal(self.param_idx, self.q_params * self.acc_f[0])
         self._reset_time_window()
         self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
@@ -405,8 +423,8 @@ class Engine(EngineState):
         sig_body = np.abs(R_nom.T) @ (self._tracker_sigma(n_stars) * self.si.att_init_scale)
         P0 = np.diag(sig_body**2)
         if use_phi:
-            P0 += np.diag(ud_var_block(self, "phi2"))
-        self._check(ud.reset_leading_block(self.U, self.d, 3, P0, self.ws.struct))
+            P0 += np.diag(self.variances()[self.layout["phi2"]])
+        self._cov_reset_attitude(P0)
         self.att_valid = True
         self.t = t_epoch
         self.mode = "converging"
@@ -483,12 +501,6 @@ class Engine(EngineState):
         self.update_mode(t)
         if self.listener is not None:
             self.listener(t)
-
-
-def ud_var_block(engine: Engine, group: str) -> np.ndarray:
-    """Variances (SI²) of one parameter group from the UD factors, without forming P."""
-    ud.variances(engine.U, engine.d, engine.ws.var)
-    return engine.ws.var[engine.layout[group]].copy()
 
 
 __all__ = ["Engine", "PARAM_GROUPS"]
