@@ -211,17 +211,17 @@ class StreamProcessor:
         for spec in self.packets.values():
             if spec.trigger == "sample" and spec.due(self.t_now):
                 now = now or self.now()
-                self._out.append((f"tlm/{spec.name}", build(spec, now)))
+                self._out.append((f"tlm/{spec.name}", build(spec, self, now)))
 
-    def now(self) -> _Now:
-        """This processor seen at the newest sample: t, attitude and rate predicted through the
-        samples not yet given to the filter and through the read the clock holds back (taken as
-        the next sample, one estimated period later, unless it repeats the last one); everything
-        else is the filter's current state."""
+    def now(self) -> dict[str, Any]:
+        """Packet fields ``t``, ``q_body_from_inertial``, ``omega_body`` at the newest sample:
+        predicted through the samples not yet given to the filter and through the read the clock
+        holds back (taken as the next sample, one estimated period later, unless it repeats the
+        last one). Other packet fields keep the filter's current state."""
         e = self.engine
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
-            return _Now(self, e.t, q, omega)
+            return _now_fields(e.t, q, omega)
         if self._gyro:
             b = self._gyro
             dth = b[0].dtheta if len(b) == 1 else np.concatenate([x.dtheta for x in b])
@@ -235,7 +235,7 @@ class StreamProcessor:
             predict_attitude(pend[0][None, :], np.array([period]), np.array([pend[1]]),
                              e.excluded, e.xp, e.A, e.Gp, q, omega)
             t += period
-        return _Now(self, t, q, omega)
+        return _now_fields(t, q, omega)
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
@@ -263,21 +263,6 @@ class StreamProcessor:
         return out
 
 
-class _EngineNow:
-    """The engine with t, q and omega replaced by the predicted "now" values."""
-
-    def __init__(self, engine: Engine, t: float, q: np.ndarray, omega: np.ndarray) -> None:
-        self._engine, self.t, self.q, self.omega = engine, t, q, omega
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._engine, name)
-
-
-class _Now:
-    """A StreamProcessor view whose engine is an :class:`_EngineNow` (packet source)."""
-
-    def __init__(self, sp: StreamProcessor, t: float, q: np.ndarray, omega: np.ndarray) -> None:
-        self._sp, self.engine = sp, _EngineNow(sp.engine, t, q, omega)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._sp, name)
+def _now_fields(t: float, q: np.ndarray, omega: np.ndarray) -> dict[str, Any]:
+    """Packet fields that a sample-triggered packet takes from the prediction."""
+    return {"t": t, "q_body_from_inertial": q.tolist(), "omega_body": omega.tolist()}

@@ -159,10 +159,16 @@ def load_packets(path: str | Path) -> dict[str, PacketSpec]:
         raise PacketError(f"{path}: {exc}") from None
 
 
-def build(spec: PacketSpec, source: Any) -> dict[str, Any]:
-    """Build one packet map (with "v": 1) from the source's current state."""
+def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Build one packet map (with "v": 1) from the source's current state; fields named in
+    ``override`` take the given values instead (the predicted t, attitude and rate)."""
     spec.seq += 1
     msg: dict[str, Any] = {"v": 1}
     for name in spec.fields:
-        msg[name] = spec.seq if name == "seq" else CATALOGUE[name][1](source)
+        if name == "seq":
+            msg[name] = spec.seq
+        elif override is not None and name in override:
+            msg[name] = override[name]
+        else:
+            msg[name] = CATALOGUE[name][1](source)
     return msg
