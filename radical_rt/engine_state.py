@@ -18,6 +18,10 @@ from .geometry import Geometry
 from .model import contract_from_internal
 from .state import PARAM_GROUPS, StateLayout
 
+# flag bits as plain ints (IntFlag arithmetic is slow on the 10 Hz path)
+_STALE_BITS = ((1, int(Flag.ST1_STALE)), (2, int(Flag.ST2_STALE)))
+_NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+
 
 class EngineState:
     """Arrays and bookkeeping of the engine for a given state layout and geometry."""
@@ -100,20 +104,16 @@ class EngineState:
 
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, convergence test on the UD variances, and the mode."""
-        for j, bit in ((1, Flag.ST1_STALE), (2, Flag.ST2_STALE)):
-            if t - self.last_valid_st.get(j, -math.inf) > self.si.st_stale_s:  # type: ignore[attr-defined]
-                self.flags |= bit
-            else:
-                self.flags &= ~int(bit)
+        f, stale_s, last = self.flags, self.si.st_stale_s, self.last_valid_st  # type: ignore[attr-defined]
+        for j, bit in _STALE_BITS:
+            f = (f | bit) if t - last.get(j, -math.inf) > stale_s else (f & ~bit)
         if not self.att_valid:
-            self.mode = "init"
+            self.flags, self.mode = f, "init"
             return
-        conv = bool((self.variances()[3:] <= self.conv_var).all())
-        if conv:
-            self.flags &= ~int(Flag.NOT_CONVERGED)
-        else:
-            self.flags |= Flag.NOT_CONVERGED
-        if self.excluded.any() or self.flags & Flag.NUMERIC:
+        conv = ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3)
+        f = (f & ~_NOT_CONVERGED) if conv else (f | _NOT_CONVERGED)
+        self.flags = f
+        if f & _NUMERIC or self.excluded.any():
             self.mode = "degraded"
         else:
             self.mode = "converged" if conv else "converging"

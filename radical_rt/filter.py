@@ -30,17 +30,19 @@ from .fdi import FaultMonitor
 from .flags import Flag
 from .geometry import Geometry
 from .model import (
-    apply_body_rotation,
+    fold_correction,
     parity_from_stats,
     quat_from_tracker,
     refresh_axes,
-    tracker_residual,
+    tracker_rows,
 )
 from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
-from .rotation import quat_conj, quat_mul, rotvec_to_quat
 from .state import PARAM_GROUPS, StateLayout
 from .updates import gated_update, gated_update_consider
+
+_ST_KIND = {1: "st1", 2: "st2"}
+_ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
 
 
 class Engine(EngineState):
@@ -50,6 +52,9 @@ class Engine(EngineState):
         geometry = geometry or Geometry()
         super().__init__(StateLayout(geometry.n_gyro, latency=True), geometry)
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
+        self._phi_p = _psl(self.layout, "phi2")  # φ2 inside xp
+        self._phi_col, self._lat_col = self.layout["phi2"].start, self.layout["lat"].start
+        self._rate2 = 0.0  # |ω̂|² at the last tracker update [rad²/s²]
         self.params_changed()
         self.cold_start()
         self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
@@ -60,6 +65,7 @@ class Engine(EngineState):
         self.si = to_si(self.table.active, self.n_gyro)
         self.q_params = np.asarray(self.si.q_params)
         self.conv_var = np.asarray(self.si.conv_sigma) ** 2
+        self.st_sigma = np.asarray(self.si.st_sigma)  # rad, tracker axes, at st_ref_stars
 
     # ---------------------------------------------------------------- starts and bumps
     def cold_start(self) -> None:
@@ -353,14 +359,10 @@ class Engine(EngineState):
 
     def _apply_correction(self) -> None:
         """Fold dx into the attitude quaternion and the parameters; dx ← 0."""
-        if not np.any(self.dx):
-            return
-        dth = self.dx[:3]
-        self.q[:] = quat_mul(quat_conj(rotvec_to_quat(dth)), self.q)  # R⁺ = R(δθ)ᵀ R̂
-        self.q /= np.linalg.norm(self.q) * (1.0 if self.q[3] >= 0 else -1.0)
-        self.xp += self.dx[3:]
-        self.dx[:] = 0.0
-        self._refresh()
+        g = self.geo  # R⁺ = R(δθ)ᵀ R̂, xp⁺ = xp + δp, geometry rebuilt (one kernel call)
+        if fold_correction(self.dx, self.q, self.xp, g.W, g.U, g.V, self.A, self.Minv, self.Gp,
+                           self.N) > 0:
+            self._numeric("sense-axis geometry singular")
 
     def state_restored(self) -> None:
         """After :meth:`set_state`: rebuild what derives from xp (scaled axes, (AAᵀ)⁻¹, pseudo-
@@ -407,7 +409,7 @@ class Engine(EngineState):
                 "sigma_s": float(math.sqrt(max(self.ws.var[k], 0.0)))}
 
     def _tracker_sigma(self, n_stars: int) -> np.ndarray:
-        return np.asarray(self.si.st_sigma) * math.sqrt(self.si.st_ref_stars / max(n_stars, 1))
+        return self.st_sigma * math.sqrt(self.si.st_ref_stars / max(n_stars, 1))
 
     def _mounting(self, j: int):
         if j == 1:
@@ -435,47 +437,41 @@ class Engine(EngineState):
 
     def _tracker_rows(self, j: int, t_epoch: float, q_meas) -> tuple[np.ndarray, np.ndarray]:
         """Residual of tracker j at t_epoch (configured-latency epoch on the gyro time line) into
-        self.r3 (tracker axes, rad) and its rows H (3, ns); returns (H, R_st_from_body_nominal)."""
+        self.r3 (tracker axes, rad) and its rows H (3, ns); returns (H, R_st_from_body_nominal).
+        The measurement refers to t_epoch − τ̂ (τ: residual latency state): the attitude is
+        extrapolated from the last sample to that time with the body rate
+        (:func:`model.tracker_rows`; ∂h/∂τ is checked by finite differences in test_latency.py)."""
         R_nom, use_phi = self._mounting(j)
-        q_epoch = self.q.copy()
-        # The measurement refers to t_epoch − τ̂ (τ: residual latency state). Extrapolate the
-        # attitude from the last sample to that time with the body rate.
-        tau = t_epoch - self.latency_residual() - self.t
-        if tau != 0.0:
-            apply_body_rotation(q_epoch, self.omega * tau, np.empty(4), np.empty(4))
-        phi = self.xp[_psl(self.layout, "phi2")]
-        tracker_residual(np.asarray(q_meas, float), q_epoch, R_nom, phi, use_phi, self.r3,
-                         self.H_att, self.H_phi)
         H = self.Hbuf[:3]
-        H[:, :] = 0.0
-        H[:, :3] = self.H_att
-        H[:, self.layout["phi2"]] = self.H_phi
-        # A latency error δτ puts the measured attitude at the epoch − δτ: an attitude error
-        # δθ = −ω̂ δτ (body), so ∂h/∂τ = H_att·(−ω̂) (finite-difference test in test_latency.py).
-        H[:, self.layout["lat"].start] = -(self.H_att @ self.omega)
+        self._rate2 = tracker_rows(
+            np.asarray(q_meas, float), self.q, self.omega, t_epoch - self.latency_residual() - self.t,
+            R_nom, self.xp[self._phi_p], use_phi, self._phi_col, self._lat_col, self.r3, self.H_att,
+            self.H_phi, H)
         return H, R_nom
 
     def _tracker_update(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
         H, R_nom = self._tracker_rows(j, t_epoch, q_meas)
+        kind = _ST_KIND[j]
         rdiag = self._tracker_sigma(n_stars) ** 2
-        v = R_nom @ self.omega  # attitude error per second of epoch error, tracker axes [rad/s]
         sig_t = self.timing_sigma()
-        ratio = sig_t * sig_t * float(v @ v) / float(rdiag.min())
+        # |R ω̂|² = |ω̂|²: attitude error per second of epoch error, tracker axes [rad/s]
+        ratio = sig_t * sig_t * self._rate2 / float(rdiag.min())
         if ratio > 1e-4:  # below, the timing term is < 0.01 % of the tracker variance
             # Epoch error δt of the gyro time line → attitude error R ω̂ δt (rank one in tracker
             # axes). While it is not small against the tracker noise (clock not locked, body
             # turning), it is a slowly varying bias, not white noise: the tracker then keeps the
             # attitude (and φ2) but does not calibrate the gyros (Schmidt consider).
+            v = R_nom @ self.omega
             consider = self.gyro_mask if sig_t > self.si.timing_consider_s else None
             if consider is not None:
-                self.counters[f"st{j}_consider"] += 1
-            used = self._correlated_update(f"st{j}", H, self.r3,
+                self.counters[kind + "_consider"] += 1
+            used = self._correlated_update(kind, H, self.r3,
                                            np.diag(rdiag) + sig_t * sig_t * np.outer(v, v),
                                            consider)
         else:
-            used = self._vector_update(f"st{j}", H, self.r3, rdiag, self.si.gate_st_nis)
-        bit = Flag.ST1_EDITED if j == 1 else Flag.ST2_EDITED
-        self.flags = (self.flags & ~int(bit)) | (0 if used else int(bit))
+            used = self._vector_update(kind, H, self.r3, rdiag, self.si.gate_st_nis)
+        bit = _ST_EDITED_BIT[j]
+        self.flags = (self.flags & ~bit) | (0 if used else bit)
         return used
 
     # ---------------------------------------------------------------- health

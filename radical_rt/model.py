@@ -113,6 +113,34 @@ def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out
 
 
 @kernel
+def tracker_rows(q_meas, q_body, omega, dt_extrap, R_st_from_body_nom, phi, use_phi, phi_col,
+                 lat_col, r_out, H_att, H_phi, H):
+    """Residual and measurement rows of one star-tracker sample (the engine's tracker update).
+
+    The attitude q_body (4,) q_body_from_inertial at the last gyro sample is extrapolated by
+    dt_extrap [s] with the body rate omega (3,) [rad/s, body] to the measurement's epoch, then
+    :func:`tracker_residual` gives r_out (3,) [rad, tracker axes], H_att and H_phi (3, 3).
+    H (3, ns) ← 0 with H_att in columns 0..2, H_phi in phi_col..phi_col+2 (if use_phi) and
+    ∂h/∂τ = −H_att ω̂ in column lat_col (a latency error δτ is an attitude error −ω̂ δτ).
+    Returns |ω̂|² [rad²/s²].
+    """
+    q_epoch = q_body.copy()
+    if dt_extrap != 0.0:
+        th = np.empty(3)
+        for r in range(3):
+            th[r] = omega[r] * dt_extrap
+        apply_body_rotation(q_epoch, th, np.empty(4), np.empty(4))
+    tracker_residual(q_meas, q_epoch, R_st_from_body_nom, phi, use_phi, r_out, H_att, H_phi)
+    H[:, :] = 0.0
+    for r in range(3):
+        for c in range(3):
+            H[r, c] = H_att[r, c]
+            H[r, phi_col + c] = H_phi[r, c]
+        H[r, lat_col] = -(H_att[r, 0] * omega[0] + H_att[r, 1] * omega[1] + H_att[r, 2] * omega[2])
+    return omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]
+
+
+@kernel
 def quat_from_tracker(q_meas, R_st_from_body_nom, phi, use_phi):
     """q_body_from_inertial (4,) implied by a tracker quaternion (inverse of the mounting model)."""
     Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
@@ -174,6 +202,35 @@ def refresh_axes(xp, W, U_ax, V_ax, N_ref, A, Minv, Gp, N):
             B[r, c] /= s
     N[:, :] = B
     return 0
+
+
+@kernel
+def fold_correction(dx, q, xp, W, U_ax, V_ax, A, Minv, Gp, N):
+    """Fold the error-state correction dx (ns,) into the estimate, then dx ← 0: the attitude
+    q_body_from_inertial (4,) ← R(δθ)ᵀ ∘ q with δθ = dx[:3] (body, rad; normalized, w ≥ 0), the
+    parameters xp ← xp + dx[3:], and the geometry of :func:`refresh_axes` (A, Minv, Gp, N, with
+    the previous N as its continuity reference) rebuilt from the new xp.
+    Returns −1 if dx is all zero (nothing changed), 0, or 1 if A Aᵀ became singular.
+    """
+    nz = False
+    for k in range(dx.shape[0]):
+        if dx[k] != 0.0:
+            nz = True
+            break
+    if not nz:
+        return -1
+    dq = np.empty(4)
+    work4 = np.empty(4)
+    rotvec_to_quat_into(dx[:3], dq)
+    dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
+    quat_mul_into(dq, q, work4)
+    for k in range(4):
+        q[k] = work4[k]
+    quat_normalize_inplace(q)
+    for k in range(xp.shape[0]):
+        xp[k] += dx[3 + k]
+    dx[:] = 0.0
+    return refresh_axes(xp, W, U_ax, V_ax, N.copy(), A, Minv, Gp, N)
 
 
 @kernel

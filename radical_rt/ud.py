@@ -115,6 +115,17 @@ def variances(U, d, out):
 
 
 @kernel
+def variances_within(U, d, out, limit, start):
+    """:func:`variances` into out (n,), then True if out[start + i] ≤ limit[i] for every i of
+    limit (n − start,) (False on a NaN): the convergence test on the UD variances."""
+    variances(U, d, out)
+    for i in range(limit.shape[0]):
+        if not (out[start + i] <= limit[i]):
+            return False
+    return True
+
+
+@kernel
 def _ut_times(U, h, f, n):
     """f[:n] ← Uᵀh for unit upper U, skipping zero entries of h (sparse star-tracker rows)."""
     f[:n] = 0.0
