@@ -2,8 +2,10 @@
 
 :class:`DenseEngine` subclasses :class:`radical_rt.filter.Engine` and overrides only the
 engine's covariance primitives (``_cov_reset_attitude``, ``_cov_add_diagonal``, ``_cov_scale``,
-``_cov_time_update``, ``_cov_block``), ``_vector_update`` and ``variances``/``contract_params``; models, Jacobians, propagation, parity statistics, regressor reliability,
-gating, consider logic, corrections and the order of every operation are the engine's own. The
+``_cov_close_window``, ``_cov_converged``), the regressor reliability (from P, an independent
+implementation of its formula), ``_vector_update`` and ``variances``/``contract_params``; models,
+Jacobians, propagation, parity statistics, gating, consider logic, corrections and the order of
+every operation are the engine's own. The
 covariance P (ns, ns) is the single source of truth:
 
 ============================  =================================  ==================================
@@ -260,11 +262,28 @@ class DenseEngine(Engine):
         self.P *= np.outer(s, s)
         self._dirty()
 
-    def _cov_time_update(self) -> None:
+    def _cov_close_window(self, noise_var: float) -> float:
+        n = self.n_gyro
+        kappa = self._regressor_reliability(self.th_acc, self.Phi_ap[:, :5 * n], noise_var)
+        if kappa < 1.0:
+            self._scale_regressor_columns(self.Phi_ap, kappa)
         self._dirty(dense_time_update(self.P, 3, self.Phi_aa, self.Phi_ap, self.Q_aa, self._T))
+        self._cov_add_diagonal(self.param_idx, self.q_params * self.acc_f[0])
+        self._reset_time_window()
+        return kappa
 
-    def _cov_block(self, sl: slice) -> np.ndarray:
-        return self.P[sl, sl]
+    def _cov_converged(self) -> bool:
+        return bool((np.diag(self.P)[3:] <= self.conv_var).all())
+
+    def _regressor_reliability(self, theta, Phi_g, noise_var: float) -> float:
+        """κ of :meth:`Engine._regressor_reliability`, computed from the dense P."""
+        th2 = float(theta @ theta)
+        if th2 <= 0.0:
+            return 0.0
+        sl = slice(3, 3 + 5 * self.n_gyro)
+        v = Phi_g.T @ theta
+        s_par = (float(v @ self.P[sl, sl] @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
+        return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
 
     # ---------------------------------------------------------- measurement update
     def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:

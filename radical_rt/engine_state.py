@@ -45,6 +45,7 @@ class EngineState:
         self.parity_queue: deque = deque()  # closed parity sums waiting for their lag
         self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(3)
         self.th_acc = np.zeros(3)  # Σθ̂ over the time-update window
+        self.q_dt = np.zeros(npar)  # parameter process noise of the window [unit²]
         self.kappa_last = np.ones(2)  # last regressor reliability (time update, parity)
         self.omega = np.zeros(3)
         m_max = max(3, nr)  # measurement rows per update (tracker 3, parity n−3)
@@ -110,13 +111,17 @@ class EngineState:
         if not self.att_valid:
             self.flags, self.mode = f, "init"
             return
-        conv = ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3)
+        conv = self._cov_converged()
         f = (f & ~_NOT_CONVERGED) if conv else (f | _NOT_CONVERGED)
         self.flags = f
         if f & _NUMERIC or self.excluded.any():
             self.mode = "degraded"
         else:
             self.mode = "converged" if conv else "converging"
+
+    def _cov_converged(self) -> bool:
+        """Every parameter variance within its convergence threshold (the engine implements it)."""
+        raise NotImplementedError
 
     def snapshot(self) -> dict[str, Any]:
         """Everything a telemetry packet may contain (SI, plain Python types)."""

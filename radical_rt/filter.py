@@ -39,6 +39,7 @@ from .model import (
 from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .state import PARAM_GROUPS, StateLayout
+from .timeupdate import close_time_window, regressor_reliability
 from .updates import gated_update, gated_update_consider
 
 _ST_KIND = {1: "st1", 2: "st2"}
@@ -114,7 +115,8 @@ class Engine(EngineState):
 
     # ---------------------------------------------------------------- covariance primitives
     # Every covariance operation of the engine goes through these (UD factors here; the dense
-    # reference of perf/dense_engine.py overrides just these and _vector_update).
+    # reference of perf/dense_engine.py overrides just these, _regressor_reliability and
+    # _vector_update). _cov_close_window is the fused 10 Hz window close (radical_rt.timeupdate).
     def _cov_reset_attitude(self, P0) -> None:
         """Attitude covariance ← P0 (3, 3), attitude cross-covariances ← 0, the rest kept."""
         self._check(ud.reset_leading_block(self.U, self.d, 3, P0, self.ws.struct))
@@ -127,15 +129,20 @@ class Engine(EngineState):
         """P ← diag(s) P diag(s)."""
         self._check(ud.scale_states(self.U, self.d, s))
 
-    def _cov_time_update(self) -> None:
-        """P ← Φ P Φᵀ + Q with Φ = [[Φ_aa, Φ_ap], [0, I]], Q = diag(Q_aa, 0) (window accumulators)."""
-        self._check(ud.structured_time_update(self.U, self.d, 3, self.Phi_aa, self.Phi_ap,
-                                              self.Q_aa, self.ws.struct))
+    def _cov_close_window(self, noise_var: float) -> float:
+        """Close the time-update window on the accumulators (:mod:`radical_rt.timeupdate`): κ
+        scaling of Φ_ap, P ← ΦPΦᵀ + diag(Q_aa, 0), parameter noise q·Δt, accumulators reset.
+        noise_var: increment noise of Θ̂ (see :meth:`_regressor_reliability`). Returns κ."""
+        status, kappa = close_time_window(
+            self.U, self.d, self.Phi_aa, self.Phi_ap, self.Q_aa, self.th_acc, self.acc_i,
+            self.acc_f, self.Minv, self.n_gyro, noise_var, self.si.regressor_k_sigma,
+            self.q_params, self.param_idx, self.q_dt, self.ws.struct, self.ws.a)
+        self._check(status)
+        return kappa
 
-    def _cov_block(self, sl: slice) -> np.ndarray:
-        """P[sl, sl] (formed from the factors)."""
-        Us = self.U[sl, :]
-        return (Us * self.d) @ Us.T
+    def _cov_converged(self) -> bool:
+        """Every parameter variance within its convergence threshold (UD variances, P not formed)."""
+        return ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3)
 
     def _begin_attitude_init(self) -> None:
         self.mode = "init"
@@ -215,20 +222,14 @@ class Engine(EngineState):
         not contain. κ = max(0, 1 − K² s_∥/|Θ̂|²), s_∥ = Θ̂ᵀSΘ̂/|Θ̂|² the variance of u along Θ̂,
         K = ``regressor_k_sigma``: the columns are used in full once the rotation is significant
         at K σ and not at all when it is not (regression calibration of the regressor).
+        Computed from the UD factors by :func:`radical_rt.timeupdate.regressor_reliability`.
         """
-        th2 = float(theta @ theta)
-        if th2 <= 0.0:
-            return 0.0
-        Pgg = self._cov_block(slice(3, 3 + 5 * self.n_gyro))
-        v = Phi_g.T @ theta
-        s_par = (float(v @ Pgg @ v) + noise_var * float(theta @ self.Minv @ theta)) / th2
-        return max(0.0, 1.0 - self.si.regressor_k_sigma ** 2 * s_par / th2)
+        return regressor_reliability(self.U, self.d, 3, theta, Phi_g, self.Minv, noise_var,
+                                     self.si.regressor_k_sigma)
 
     def _scale_regressor_columns(self, M, kappa: float) -> None:
         """Scale the λ, μ, du, dv columns (gyro-parameter order) of M (rows, ≥ 5n columns) by κ."""
-        n = self.n_gyro
-        M[:, n:3 * n] *= kappa
-        M[:, 3 * n:5 * n] *= kappa
+        M[:, self.n_gyro:5 * self.n_gyro] *= kappa
 
     def _close_window(self) -> None:
         """Structured time update, parameter process noise, and the parity sums that are due.
@@ -243,16 +244,8 @@ class Engine(EngineState):
         """
         if self.acc_i[0] == 0:
             return
-        n = self.n_gyro
-        kappa = self._regressor_reliability(
-            self.th_acc, self.Phi_ap[:, :5 * n],
+        self.kappa_last[0] = self._cov_close_window(
             self.si.arw_var_per_s * self.acc_f[0] + self.si.quant_var)
-        self.kappa_last[0] = kappa
-        if kappa < 1.0:
-            self._scale_regressor_columns(self.Phi_ap, kappa)
-        self._cov_time_update()
-        self._cov_add_diagonal(self.param_idx, self.q_params * self.acc_f[0])
-        self._reset_time_window()
         self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
             self._queue_parity()
