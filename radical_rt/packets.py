@@ -13,6 +13,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from ._jit import kernel
 from .conventions import SIRU_TT_WRAP
 
 QUAT_NORM_TOL = 1e-3  # |‖q‖ − 1| above this is a non-unit quaternion
@@ -75,22 +76,42 @@ def decode_siru(msg: dict, n_gyro: int = 4):
     if k == 0 or k > MAX_SIRU_BATCH:
         raise InputError("bad_shape", f"siru batch must hold 1..{MAX_SIRU_BATCH} samples, got {k}")
     raw_tt = _field(msg, "tt")
-    if not isinstance(raw_tt, (list, tuple)) or any(
-            isinstance(x, bool) or not isinstance(x, int) for x in raw_tt):
-        raise InputError("bad_type", "tt must be a list of integers")
+    if not isinstance(raw_tt, (list, tuple)) or not all(type(x) is int for x in raw_tt):
+        raise InputError("bad_type", "tt must be a list of integers")  # (bool is not int here)
     tt = _array(raw_tt, "tt", np.int64)
     dth = _array(_field(msg, "dtheta"), "dtheta", np.float64, (n_gyro,))
     status = _array(_field(msg, "status"), "status", np.int64)
     if not (tt.shape[0] == dth.shape[0] == status.shape[0] == k):
         raise InputError("bad_shape", f"siru columns differ in length: t_bus {k}, tt {tt.shape[0]}, "
                                       f"dtheta {dth.shape[0]}, status {status.shape[0]}")
-    if not (np.isfinite(t).all() and np.isfinite(dth).all()):
-        raise InputError("nonfinite", "siru t_bus or dtheta contains NaN/Inf")
-    if (tt < 0).any() or (tt >= SIRU_TT_WRAP).any() or (status < 0).any():
-        raise InputError("bad_value", "siru tt outside [0, 2**32) or negative status")
-    if k > 1 and (np.diff(t) < 0).any():
-        raise InputError("time_backwards", "siru t_bus decreases inside the batch")
+    bad = _siru_column_check(t, tt, dth, status, SIRU_TT_WRAP)
+    if bad:
+        raise InputError(*_SIRU_BAD[bad])
     return t, tt, dth, status
+
+
+_SIRU_BAD = {1: ("nonfinite", "siru t_bus or dtheta contains NaN/Inf"),
+             2: ("bad_value", "siru tt outside [0, 2**32) or negative status"),
+             3: ("time_backwards", "siru t_bus decreases inside the batch")}
+
+
+@kernel
+def _siru_column_check(t, tt, dth, status, tt_wrap):
+    """0 if the columns of a siru batch are valid, else the first failing check: 1 a NaN/Inf in
+    t (k,) or dth (k, n); 2 tt (k,) outside [0, tt_wrap) or a negative status (k,); 3 t decreases."""
+    for i in range(t.shape[0]):
+        if not math.isfinite(t[i]):
+            return 1
+        for j in range(dth.shape[1]):
+            if not math.isfinite(dth[i, j]):
+                return 1
+    for i in range(t.shape[0]):
+        if tt[i] < 0 or tt[i] >= tt_wrap or status[i] < 0:
+            return 2
+    for i in range(1, t.shape[0]):
+        if t[i] < t[i - 1]:
+            return 3
+    return 0
 
 
 def decode_tracker(msg: dict):
