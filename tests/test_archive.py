@@ -482,3 +482,20 @@ def test_killed_writer_leaves_readable_prefix(tmp_path, mode):
         assert recover(p, tmp_path / "rec.mcap") == n
     with _no_warnings_reader(tmp_path / "rec.mcap") as r2:
         assert r2.message_counts == {"/siru": n}
+
+
+def test_time_ordered_chunks_read_without_merge(tmp_path, stream, archive):
+    """An archive whose chunks do not overlap in time is read chunk by chunk (stable sort inside
+    each); the result equals the mcap reader's log-time merge, with filters and ties."""
+    ordered = sorted(stream, key=lambda e: e[2])  # stable: same-time messages keep their order
+    ordered += [("/st1", dict(m, note="tie"), t) for topic, m, t in ordered[-3:] if topic == "/st1"]
+    path = write_stream(tmp_path / "ordered.mcap", ordered, chunk_size=512)
+    with ArchiveReader(path) as r:
+        assert r._ordered_chunks() is not None and len(r._summary.chunk_indexes) > 3
+        ref = [(ch.topic, m.log_time, m.data) for _s, ch, m in r._reader.iter_messages()]
+        assert list(r.iter_raw()) == ref == expected_raw(ordered)
+        a, b = t_to_ns(1002.25), t_to_ns(1002.75)
+        got = list(r.iter_raw(["/siru", "/st1"], start_ns=a, end_ns=b))
+        assert got and got == [e for e in ref if a <= e[1] < b and e[0] in ("/siru", "/st1")]
+    with ArchiveReader(archive) as r:  # written out of time order: chunks overlap, merged read
+        assert r._ordered_chunks() is None
