@@ -156,13 +156,17 @@ class Engine(EngineState):
             self.fdi.on_gyro(t, dt, dtheta, status, bridged, var_extra)
         m = len(t)
         k = 0
+        gap_s = self.si.gyro_gap_s
+        any_gap = m > 0 and not dt.max() <= gap_s
         while k < m:
             if not self.att_valid:  # waiting for the first tracker: nothing to propagate
                 self.counters["siru_pre_init"] += m - k
                 self.t = float(t[m - 1])
                 return
-            gap = np.nonzero(dt[k:] > self.si.gyro_gap_s)[0]
-            stop = m if gap.size == 0 else k + int(gap[0])
+            stop = m
+            if any_gap:
+                gap = np.nonzero(dt[k:] > gap_s)[0]
+                stop = m if gap.size == 0 else k + int(gap[0])
             if stop == k:  # a gap: the attitude is lost; warm start, resume at the next tracker
                 self.flags |= Flag.GYRO_GAP
                 self.counters["gyro_gaps"] += 1
@@ -173,9 +177,12 @@ class Engine(EngineState):
             k = self._propagate(t, dt, dtheta, status, bridged, var_extra, k, stop)
 
     def _propagate(self, t, dt, dtheta, status, bridged, var_extra, k, stop) -> int:
+        if stop < len(dt):
+            dtheta, dt, status, bridged = dtheta[:stop], dt[:stop], status[:stop], bridged[:stop]
+            var_extra = var_extra[:stop]
         while k < stop:
             k_next, pflags = propagate_window(
-                dtheta[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k,
+                dtheta, dt, status, bridged, var_extra, k,
                 self.excluded, self.xp, self.q, self.A, self.geo.W, self.geo.U, self.geo.V,
                 self.Minv, self.Gp, self.N, self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t, self.acc_i,
                 self.acc_f, self.th_acc, self.si.prop_window, self.si.arw_var_per_s, self.omega)

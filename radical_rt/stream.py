@@ -134,7 +134,7 @@ class StreamProcessor:
     def _release_gyro(self, upto: float) -> None:
         while self._gyro:
             b = self._gyro[0]
-            k = int(np.searchsorted(b.t, upto, side="right"))
+            k = len(b.t) if b.t[-1] <= upto else int(b.t.searchsorted(upto, side="right"))
             if k == 0:
                 return
             self.engine.gyro(b.t[:k], b.dt[:k], b.dtheta[:k], b.status[:k], b.bridged[:k],
