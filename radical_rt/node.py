@@ -230,6 +230,7 @@ class FilterNode:
         self._handles: list[Any] = []
         self._count_lock = threading.Lock()
         self._enqueued = self._processed = 0
+        self._overflow_pending = False  # a callback dropped a message since the last report
         self.checkpoints_written = 0
         self.last_checkpoint_mono: float | None = None
         self.loop_error: BaseException | None = None
@@ -299,6 +300,7 @@ class FilterNode:
                 self._enqueued -= 1
             with v.lock:
                 v.overflow[topic] += 1
+            self._overflow_pending = True  # after the count: the loop's next look sees it
 
     def _on_query(self, v: Vehicle, data: bytes) -> bytes:
         try:
@@ -344,6 +346,8 @@ class FilterNode:
             raise
 
     def _run_commands(self) -> None:
+        if self._cmdq.empty():  # the common case: no exception raised per message
+            return
         while True:
             try:
                 p = self._cmdq.get_nowait()
@@ -391,6 +395,19 @@ class FilterNode:
                 log.warning("%s: cannot publish %s: %s", v.name, topic, exc)
 
     def _housekeeping(self, checkpoint: bool = True) -> None:
+        """After every message: report queue overflows (only when a callback saw one, so the cost
+        per message does not grow with the number of vehicles) and write a periodic checkpoint."""
+        if self._overflow_pending:
+            self._overflow_pending = False
+            self._report_overflows()
+        if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
+            self._next_ckpt = self._mono() + self.checkpoint_every_s
+            try:
+                self.write_checkpoint()
+            except ckpt.CheckpointError as exc:
+                log.error("%s", exc)
+
+    def _report_overflows(self) -> None:
         for v in self.vehicles.values():
             with v.lock:
                 total = sum(v.overflow.values())
@@ -399,12 +416,6 @@ class FilterNode:
                 _note_reject(v.sp, "input", "queue_overflow",
                              f"queue full: {n} message(s) dropped", count=n)
                 log.warning("%s: input queue full, %d message(s) dropped", v.name, n)
-        if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
-            self._next_ckpt = self._mono() + self.checkpoint_every_s
-            try:
-                self.write_checkpoint()
-            except ckpt.CheckpointError as exc:
-                log.error("%s", exc)
 
     def write_checkpoint(self) -> str:
         """Write all vehicles' state now (filter loop thread, or after it stopped)."""
