@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from numba import njit
 
-_POLICY = dict(cache=True, fastmath=False, nogil=True, error_model="numpy")
+_POLICY = dict(cache=True, fastmath=False, nogil=False, error_model="numpy")
 
 
 def kernel(fn):

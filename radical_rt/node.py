@@ -1,16 +1,25 @@
-"""The streaming shell: transport callbacks → bounded queue → ONE filter loop → published outputs.
+"""The streaming shell: input FIFO → ONE filter loop → published outputs.
 
 Threads and ownership:
 
-* transport callbacks (one subscriber per vehicle on ``radical/<vehicle>/*``, so the arrival order
-  across the input topics is kept) only put ``(vehicle, topic, payload bytes)`` on a bounded queue;
-  when it is full they wait up to ``queue_wait_s`` (back-pressure to a BLOCK publisher), then drop
-  the message and count it (``queue_overflow``, visible in diag and status, INPUT_REJECTED set);
+* the inputs of every vehicle arrive in ONE bounded FIFO (:meth:`Transport.inbox`, capacity
+  ``queue_size``): on ``radical/<vehicle>/*`` for one vehicle, on ``radical/*/*`` (keys of vehicles
+  not served are ignored) for several, so the arrival order across the input topics of a vehicle
+  is kept. No callback runs per sample: the filter loop pulls the samples itself. (Each subscriber
+  callback of the Zenoh binding runs on a Python thread of its own that competes with the filter
+  loop for the GIL; with a callback and a queue per vehicle a node served 24 vehicles at real time
+  on 2 cores, with one callback thread 40, with the pulled FIFO 56: perf/README.md.) A full Zenoh
+  FIFO back-pressures the session (BLOCK publishers wait, DROP publishers drop on their side); the
+  in-memory one makes its publisher wait up to ``queue_wait_s``, then drops and counts
+  (``queue_overflow``, visible in diag and status, INPUT_REJECTED set);
+* the filter loop thread owns every :class:`~radical_rt.stream.StreamProcessor` (one per
+  vehicle): it feeds the samples in arrival order, publishes the outputs on
+  ``radical/<vehicle>/<topic>`` (to other sessions only), applies pending commands between two
+  messages and writes periodic checkpoints;
 * query callbacks on ``radical/<vehicle>/cmd`` parse and validate a command
-  (:mod:`radical_rt.commands`), hand it to the filter loop and wait for its reply;
-* the filter loop thread owns every :class:`~radical_rt.stream.StreamProcessor` (one per vehicle):
-  it applies pending commands between filter steps, feeds messages in arrival order, publishes the
-  outputs on ``radical/<vehicle>/<topic>`` and writes periodic checkpoints.
+  (:mod:`radical_rt.commands`), queue it for the loop, wake the loop if it is waiting for input
+  (:meth:`Inbox.wake`) and wait for its reply. A ticker wakes a waiting loop every ``TICK_S`` for
+  the periodic checkpoints and overflow reports.
 
 The StreamProcessor is the batch shell's (:func:`radical_rt.batch.make_processor`), so a node fed
 an archive's input messages in ``log_time`` order ends with bit-identical estimates.
@@ -39,7 +48,7 @@ from . import commands
 from .batch import make_processor, make_summary
 from .params import ParamTable
 from .stream import INPUT_TOPICS, StreamProcessor
-from .transport import Transport
+from .transport import Inbox, Transport
 
 log = logging.getLogger("radical.node")
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
@@ -70,7 +79,6 @@ class Vehicle:
         self.received: dict[str, int] = defaultdict(int)
         self.overflow: dict[str, int] = defaultdict(int)
         self.fed: dict[str, int] = defaultdict(int)  # loop thread only
-        self._overflow_seen = 0
         self.commands_applied = 0
         self.published: dict[str, int] = defaultdict(int)
 
@@ -99,7 +107,7 @@ class Vehicle:
             received, overflow = dict(self.received), dict(self.overflow)
         n = self.node
         return {"received": received, "fed": dict(self.fed), "queue_overflow": overflow,
-                "queue_depth": n.queue.qsize(), "queue_size": n.queue.maxsize,
+                "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
@@ -204,9 +212,13 @@ class FilterNode:
 
     processors: vehicle name → StreamProcessor (see :func:`build_processors`). checkpoint_path:
     where periodic (every ``checkpoint_every_s`` of wall time), on-command and final checkpoints
-    go (None: no checkpoints). block_outputs: BLOCK congestion control for every output (default:
-    only ``fault``; telemetry and diag use DROP so a stuck consumer cannot stall the filter).
+    go (None: no checkpoints). queue_size: capacity of the input FIFO (queue_wait_s: how long a
+    full in-memory FIFO makes its publisher wait before dropping). block_outputs: BLOCK congestion
+    control for every output (default: only ``fault``; telemetry and diag use DROP so a stuck
+    consumer cannot stall the filter).
     """
+
+    TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
 
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
                  checkpoint_path: str | None = None, checkpoint_every_s: float = 60.0,
@@ -220,17 +232,18 @@ class FilterNode:
         self.transport = transport
         self.vehicles = {name: Vehicle(self, name, sp) for name, sp in processors.items()}
         self.checkpoint_path, self.checkpoint_every_s = checkpoint_path, checkpoint_every_s
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
-        self.queue_wait_s, self.block_outputs = queue_wait_s, block_outputs
+        self.queue_size, self.queue_wait_s = queue_size, queue_wait_s
+        self.block_outputs = block_outputs
         self.command_timeout_s = command_timeout_s
         self._cmdq: queue.Queue = queue.Queue(maxsize=64)
         self._mono = monotonic
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._ticker: threading.Thread | None = None
+        self._inbox: Inbox | None = None
         self._handles: list[Any] = []
-        self._count_lock = threading.Lock()
-        self._enqueued = self._processed = 0
-        self._overflow_pending = False  # a callback dropped a message since the last report
+        self._idle = False  # the loop waits for input (set before its last look at commands)
+        self._processed = 0
         self.checkpoints_written = 0
         self.last_checkpoint_mono: float | None = None
         self.loop_error: BaseException | None = None
@@ -239,14 +252,19 @@ class FilterNode:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Declare subscribers, queryables and liveliness tokens; start the filter loop."""
+        """Declare the input FIFO, queryables and liveliness tokens; start the filter loop."""
         self.running = True
         self._next_ckpt = self._mono() + self.checkpoint_every_s
+        if len(self.vehicles) == 1:  # one FIFO for every input (see the module docstring)
+            key = next(iter(self.vehicles.values())).prefix + "*"
+        else:
+            key = "radical/*/*"
+        self._inbox = self.transport.inbox(key, self.queue_size, self.queue_wait_s)
         self._thread = threading.Thread(target=self._loop, name="radical-filter", daemon=True)
         self._thread.start()
+        self._ticker = threading.Thread(target=self._tick, name="radical-tick", daemon=True)
+        self._ticker.start()
         for v in self.vehicles.values():
-            self._handles.append(self.transport.subscribe(  # not our own outputs
-                v.prefix + "*", functools.partial(self._on_sample, v), remote_only=True))
             self._handles.append(self.transport.queryable(
                 v.prefix + "cmd", functools.partial(self._on_query, v)))
             self._handles.append(self.transport.liveliness_token(v.prefix + "alive/filter"))
@@ -260,8 +278,16 @@ class FilterNode:
         if self._thread is not None:
             self._drain_until = self._mono() + drain_s
             self._stop.set()
+            assert self._inbox is not None
+            self._inbox.wake()
             self._thread.join()
             self._thread = None
+        if self._ticker is not None:
+            self._ticker.join()
+            self._ticker = None
+        if self._inbox is not None:
+            self._inbox.undeclare()  # the loop has stopped reading it
+            self._inbox = None
         self.running = False
         while True:  # commands that arrived too late
             try:
@@ -274,34 +300,24 @@ class FilterNode:
             self.write_checkpoint()
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
-        """Wait until everything received so far has been fed (tests, tools)."""
+        """Wait until everything received so far has been fed (tests, tools): the loop waits for
+        input with an empty FIFO and no pending command, twice in a row with nothing fed between."""
         end = time.monotonic() + timeout
+        seen = None
         while time.monotonic() < end:
-            with self._count_lock:
-                if self._processed >= self._enqueued and self._cmdq.empty():
+            box = self._inbox
+            pending = getattr(box, "pending", lambda: 0)() if box is not None else 0
+            state = self._processed
+            if self._idle and not pending and self._cmdq.empty():
+                if seen == state:
                     return True
+                seen = state
+            else:
+                seen = None
             time.sleep(0.002)
         return False
 
-    # ------------------------------------------------------------------ callbacks (any thread)
-    def _on_sample(self, v: Vehicle, key: str, data: bytes) -> None:
-        t_recv = time.monotonic_ns() if self.timing is not None else 0
-        topic = key[len(v.prefix):] if key.startswith(v.prefix) else key
-        if topic not in INPUT_TOPICS:
-            return  # our own outputs and unrelated keys
-        with v.lock:
-            v.received[topic] += 1
-        try:
-            with self._count_lock:
-                self._enqueued += 1
-            self.queue.put((v, topic, data, t_recv), timeout=self.queue_wait_s)
-        except queue.Full:
-            with self._count_lock:
-                self._enqueued -= 1
-            with v.lock:
-                v.overflow[topic] += 1
-            self._overflow_pending = True  # after the count: the loop's next look sees it
-
+    # ------------------------------------------------------------------ query callbacks
     def _on_query(self, v: Vehicle, data: bytes) -> bytes:
         try:
             cmd = commands.parse(data, v.sp.engine.n_gyro)
@@ -314,36 +330,62 @@ class FilterNode:
             self._cmdq.put_nowait(p)
         except queue.Full:
             return packb(commands.error_reply("too many pending commands, try again", cmd))
+        if self._idle and self._inbox is not None:  # the loop waits for input: wake it
+            self._inbox.wake()
         return packb(p.wait(self.command_timeout_s))
 
     # ------------------------------------------------------------------ filter loop thread
     def _loop(self) -> None:
+        """Take every input from the FIFO in arrival order and feed it (one Python thread does
+        all per-message work: no callback thread competes for the GIL)."""
+        inbox = self._inbox
+        assert inbox is not None
         try:
             while not self._stop.is_set():
+                item = inbox.try_recv()
+                if item is None:
+                    self._idle = True  # before the last look: a command queued after it wakes us
+                    self._run_commands()
+                    self._housekeeping()
+                    item = inbox.recv()  # waits with the GIL released; None: woken
+                    self._idle = False
+                    if item is None:
+                        continue
                 self._run_commands()
-                try:
-                    item = self.queue.get(timeout=0.05)
-                except queue.Empty:
-                    item = None
-                if item is not None:
-                    self._feed(*item)
+                self._take(*item)
                 self._housekeeping()
-                if item is not None:  # counted once its consequences (checkpoint) are done
-                    with self._count_lock:
-                        self._processed += 1
             while self._mono() < self._drain_until:  # stopping: finish what is queued
-                try:
-                    item = self.queue.get_nowait()
-                except queue.Empty:
+                item = inbox.try_recv()
+                if item is None:
                     break
-                self._feed(*item)
-                with self._count_lock:
-                    self._processed += 1
+                self._take(*item)
+            self._idle = True
             self._housekeeping(checkpoint=False)
         except BaseException as exc:  # pragma: no cover - a bug; keep it visible
             self.loop_error = exc
             log.exception("filter loop failed")
             raise
+
+    def _tick(self) -> None:
+        """Wake a loop that waits for input every TICK_S (its housekeeping: overflow reports,
+        periodic checkpoints)."""
+        while not self._stop.wait(self.TICK_S):
+            if self._idle and self._inbox is not None:
+                self._inbox.wake()
+
+    def _take(self, key: str, data: bytes) -> None:
+        """One input sample from the FIFO: route it to its vehicle and feed it."""
+        t_recv = time.monotonic_ns() if self.timing is not None else 0
+        v = self.vehicles.get(key.split("/", 2)[1])
+        if v is None:  # a vehicle this node does not serve
+            return
+        topic = key[len(v.prefix):]
+        if topic not in INPUT_TOPICS:
+            return  # other keys of the vehicle (the FIFO also holds a local wake-up)
+        with v.lock:
+            v.received[topic] += 1
+        self._feed(v, topic, data, t_recv)
+        self._processed += 1
 
     def _run_commands(self) -> None:
         if self._cmdq.empty():  # the common case: no exception raised per message
@@ -387,19 +429,20 @@ class FilterNode:
         for topic, msg in outs:
             if topic == "diag":
                 msg = {**msg, "node": v.node_info()}
-            try:
+            try:  # remote_only: never back into our own input FIFO
                 self.transport.put(v.prefix + topic, packb(msg),
-                                   block=self.block_outputs or topic == "fault")
+                                   block=self.block_outputs or topic == "fault", remote_only=True)
                 v.published[topic] += 1
             except Exception as exc:
                 log.warning("%s: cannot publish %s: %s", v.name, topic, exc)
 
     def _housekeeping(self, checkpoint: bool = True) -> None:
-        """After every message: report queue overflows (only when a callback saw one, so the cost
-        per message does not grow with the number of vehicles) and write a periodic checkpoint."""
-        if self._overflow_pending:
-            self._overflow_pending = False
-            self._report_overflows()
+        """Between messages (and on the idle ticks): report the inputs the FIFO dropped, and
+        write the periodic checkpoint."""
+        assert self._inbox is not None
+        dropped = self._inbox.take_dropped()
+        if dropped:
+            self._report_overflows(dropped)
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
             self._next_ckpt = self._mono() + self.checkpoint_every_s
             try:
@@ -407,15 +450,25 @@ class FilterNode:
             except ckpt.CheckpointError as exc:
                 log.error("%s", exc)
 
-    def _report_overflows(self) -> None:
-        for v in self.vehicles.values():
+    def _report_overflows(self, dropped: dict[str, int]) -> None:
+        for key, n in dropped.items():
+            v = self.vehicles.get(key.split("/", 2)[1])
+            topic = key[len(v.prefix):] if v is not None else ""
+            if v is None or topic not in INPUT_TOPICS:
+                continue
             with v.lock:
-                total = sum(v.overflow.values())
-            if total > v._overflow_seen:
-                n, v._overflow_seen = total - v._overflow_seen, total
-                _note_reject(v.sp, "input", "queue_overflow",
-                             f"queue full: {n} message(s) dropped", count=n)
-                log.warning("%s: input queue full, %d message(s) dropped", v.name, n)
+                v.overflow[topic] += n
+            _note_reject(v.sp, "input", "queue_overflow",
+                         f"queue full: {n} message(s) dropped", count=n)
+            log.warning("%s: input queue full, %d message(s) dropped", v.name, n)
+
+    def queue_depth(self) -> int | None:
+        """Samples waiting in the input FIFO. A Zenoh FIFO does not tell: 0 while the loop has
+        found it empty (waiting, or running a command then), None while it is feeding."""
+        pending = getattr(self._inbox, "pending", None)
+        if pending is not None:
+            return int(pending())
+        return 0 if self._idle else None
 
     def write_checkpoint(self) -> str:
         """Write all vehicles' state now (filter loop thread, or after it stopped)."""

@@ -4,8 +4,13 @@ The node only needs five things from a middleware, all with raw ``bytes`` payloa
 
 * ``subscribe(key, callback, remote_only=False)``: ``callback(key, payload)`` for every sample on a
   key expression (``remote_only``: not the samples this transport publishes itself);
-* ``put(key, payload, block=False)``: publish (``block=True`` = BLOCK congestion control, for data
-  that must not be lost; otherwise DROP);
+* ``inbox(key, capacity, wait_s)``: the same samples (other transports' only) pulled by the caller
+  from a bounded FIFO (:class:`Inbox`): ``try_recv()``, a blocking ``recv()`` that another thread
+  can end with ``wake()``, and the samples dropped because the FIFO was full. No callback thread
+  takes the GIL per sample: the node's filter loop reads its inputs this way;
+* ``put(key, payload, block=False, remote_only=False)``: publish (``block=True`` = BLOCK
+  congestion control, for data that must not be lost; otherwise DROP; ``remote_only``: not
+  delivered to this transport's own subscribers and inboxes);
 * ``queryable(key, handler)``: ``handler(payload) -> reply bytes`` answers queries on a key;
 * ``liveliness_token(key)``: a token visible while the session lives;
 * ``close()``.
@@ -28,6 +33,7 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -47,12 +53,34 @@ class Handle(Protocol):
     def undeclare(self) -> None: ...
 
 
+class Inbox(Protocol):
+    """A bounded FIFO of ``(key, payload)`` samples pulled by one consumer thread."""
+
+    def try_recv(self) -> tuple[str, bytes] | None:
+        """The next sample, or None at once if there is none."""
+
+    def recv(self) -> tuple[str, bytes] | None:
+        """The next sample, waiting for it (GIL released); None after :meth:`wake`."""
+
+    def wake(self) -> None:
+        """End one blocked (or the next) :meth:`recv` with None (any thread)."""
+
+    def take_dropped(self) -> dict[str, int]:
+        """Samples dropped since the last call because the FIFO was full, per key."""
+
+    def undeclare(self) -> None:
+        """Stop receiving (call from the consumer thread, or once it has stopped)."""
+
+
 class Transport(Protocol):
     """What the node needs from a middleware (see module docstring)."""
 
     def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> Handle: ...
 
-    def put(self, key: str, payload: bytes, block: bool = False) -> None: ...
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> Inbox: ...
+
+    def put(self, key: str, payload: bytes, block: bool = False,
+            remote_only: bool = False) -> None: ...
 
     def queryable(self, key: str, handler: QueryHandler) -> Handle: ...
 
@@ -110,6 +138,65 @@ class _Decl:
 
     def undeclare(self) -> None:
         self.bus._remove(self)
+
+
+class _MemInbox:
+    """:class:`Inbox` of the in-memory bus: a deque with a condition. When it is full, the
+    delivering thread waits up to ``wait_s`` for room (back-pressure), then drops and counts."""
+
+    _WAKE = object()
+
+    def __init__(self, capacity: int, wait_s: float) -> None:
+        self.capacity, self.wait_s = capacity, wait_s
+        self._items: deque = deque()
+        self._cond = threading.Condition()
+        self._dropped: dict[str, int] = {}
+        self._decl: _Decl | None = None
+
+    def push(self, key: str, data: bytes) -> None:
+        with self._cond:
+            if len(self._items) >= self.capacity and not self._cond.wait_for(
+                    lambda: len(self._items) < self.capacity, timeout=self.wait_s):
+                self._dropped[key] = self._dropped.get(key, 0) + 1
+                return
+            self._items.append((key, data))
+            self._cond.notify_all()
+
+    def _pop(self, block: bool):
+        with self._cond:
+            if block:
+                self._cond.wait_for(lambda: self._items)
+            if not self._items:
+                return None
+            item = self._items.popleft()
+            self._cond.notify_all()  # room for a waiting push
+            return None if item is self._WAKE else item
+
+    def try_recv(self) -> tuple[str, bytes] | None:
+        return self._pop(False)
+
+    def recv(self) -> tuple[str, bytes] | None:
+        return self._pop(True)
+
+    def wake(self) -> None:
+        with self._cond:
+            self._items.append(self._WAKE)
+            self._cond.notify_all()
+
+    def pending(self) -> int:
+        """Samples waiting (exact on this bus)."""
+        with self._cond:
+            return sum(1 for it in self._items if it is not self._WAKE)
+
+    def take_dropped(self) -> dict[str, int]:
+        with self._cond:
+            out, self._dropped = self._dropped, {}
+        return out
+
+    def undeclare(self) -> None:
+        if self._decl is not None:
+            self._decl.undeclare()
+            self._decl = None
 
 
 class InMemoryBus:
@@ -172,18 +259,23 @@ class InMemoryTransport:
     def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> _Decl:
         return self._declare("sub", key, callback, self if remote_only else None)
 
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> _MemInbox:
+        box = _MemInbox(capacity, wait_s)
+        box._decl = self.subscribe(key, box.push, remote_only=True)
+        return box
+
     def queryable(self, key: str, handler: QueryHandler) -> _Decl:
         return self._declare("qbl", key, handler)
 
     def liveliness_token(self, key: str) -> _Decl:
         return self._declare("token", key, None)
 
-    def put(self, key: str, payload: bytes, block: bool = False) -> None:
+    def put(self, key: str, payload: bytes, block: bool = False, remote_only: bool = False) -> None:
         if self.closed:
             raise TransportError("transport closed")
         data = bytes(payload)
         for d in self.bus._find("sub", key):
-            if d.owner is self:
+            if d.owner is self or (remote_only and d in self._mine):
                 continue
             if d.worker:
                 d.worker.submit(functools.partial(d.fn, key, data))
@@ -233,6 +325,65 @@ class _ZHandle:
             self.obj = None
 
 
+class _ZInbox:
+    """:class:`Inbox` on a Zenoh subscriber with a ``FifoChannel(capacity)`` handler.
+
+    A full channel blocks the session's receive thread (back-pressure on BLOCK publishers; DROP
+    publishers drop in their own queues), so nothing is dropped here. The subscriber also takes
+    samples of its own session, so that :meth:`wake` can end a blocked ``recv`` with a
+    session-local put on ``wake_key`` (it never leaves the process); the owner publishes its own
+    data with ``remote_only`` (it would otherwise come back into this FIFO).
+    """
+
+    def __init__(self, transport: ZenohTransport, key: str, capacity: int) -> None:
+        z = transport._z
+        self._t, self._z = transport, z
+        self.wake_key = _wake_key(key)
+        self._sub = transport.session.declare_subscriber(key, z.handlers.FifoChannel(capacity))
+
+    def _item(self, s: Any) -> tuple[str, bytes] | None:
+        key = str(s.key_expr)
+        return None if key == self.wake_key else (key, s.payload.to_bytes())
+
+    def try_recv(self) -> tuple[str, bytes] | None:
+        while (s := self._sub.try_recv()) is not None:
+            item = self._item(s)
+            if item is not None:
+                return item
+        return None
+
+    def recv(self) -> tuple[str, bytes] | None:
+        try:
+            return self._item(self._sub.recv())
+        except Exception as exc:  # undeclared subscriber or closed session
+            log.debug("inbox recv: %s", exc)
+            return None
+
+    def wake(self) -> None:
+        try:
+            self._t.session.put(self.wake_key, b"",
+                                allowed_destination=self._z.Locality.SESSION_LOCAL)
+        except Exception as exc:  # closed session: nothing is waiting any more
+            log.debug("inbox wake: %s", exc)
+
+    def take_dropped(self) -> dict[str, int]:
+        return {}
+
+    def undeclare(self) -> None:
+        if self._sub is not None:
+            try:
+                self._sub.undeclare()
+            except Exception as exc:
+                log.debug("inbox undeclare: %s", exc)
+            self._sub = None
+
+
+def _wake_key(expr: str) -> str:
+    """A concrete key matched by ``expr`` that no vehicle or topic uses (upper case)."""
+    chunks = [c if c not in ("*", "**") else "WAKE" for c in expr.split("/")]
+    return "/".join(chunks[:-1] + ["WAKE"]) if chunks[-1] != "WAKE" else "/".join(chunks)
+
+
 class ZenohTransport:
     """A :class:`Transport` on one eclipse-zenoh 1.x session (loopback endpoints only).
 
@@ -271,18 +422,26 @@ class ZenohTransport:
         origin = self._z.Locality.REMOTE if remote_only else None
         return self._keep(self.session.declare_subscriber(key, on_sample, allowed_origin=origin))
 
-    def _publisher(self, key: str, block: bool) -> Any:
+    def _publisher(self, key: str, block: bool, remote_only: bool) -> Any:
         with self._lock:
-            pub = self._pubs.get((key, block))
+            pub = self._pubs.get((key, block, remote_only))
             if pub is None:
-                cc = self._z.CongestionControl.BLOCK if block else self._z.CongestionControl.DROP
-                pub = self.session.declare_publisher(key, encoding=self._z.Encoding(self.ENCODING),
-                                                     congestion_control=cc)
-                self._pubs[(key, block)] = pub
+                z = self._z
+                cc = z.CongestionControl.BLOCK if block else z.CongestionControl.DROP
+                dest = z.Locality.REMOTE if remote_only else z.Locality.ANY
+                pub = self.session.declare_publisher(key, encoding=z.Encoding(self.ENCODING),
+                                                     congestion_control=cc,
+                                                     allowed_destination=dest)
+                self._pubs[(key, block, remote_only)] = pub
             return pub
 
-    def put(self, key: str, payload: bytes, block: bool = False) -> None:
-        self._publisher(key, block).put(payload)
+    def put(self, key: str, payload: bytes, block: bool = False, remote_only: bool = False) -> None:
+        pub = self._pubs.get((key, block, remote_only)) or self._publisher(key, block, remote_only)
+        pub.put(payload)
+
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> _ZInbox:
+        """A pulled FIFO of the samples on ``key`` (wait_s is unused: the FIFO back-pressures)."""
+        return _ZInbox(self, key, capacity)
 
     def queryable(self, key: str, handler: QueryHandler) -> _ZHandle:
         def on_query(q: Any) -> None:

@@ -59,6 +59,43 @@ def _exercise(a, b, sync, wait_alive):
     b.put("own/x", b"from-b", block=True)
     sync(lambda: len(anyone) == 2 and len(mine) == 1)
     assert mine == [b"from-b"] and sorted(anyone) == [b"from-a", b"from-b"]
+    _exercise_inbox(a, b, sync)
+
+
+def _exercise_inbox(a, b, sync):
+    """Inbox: other transports' samples in order, pulled; recv waits and wake() ends it; a
+    remote_only put of its own transport never comes back into it."""
+    box = a.inbox("radical/*/*", capacity=4096)
+    a.liveliness_token("radical/box/alive")  # (Zenoh: wait for the subscription to be known)
+    time.sleep(0.3 if isinstance(a, ZenohTransport) else 0)
+    sent = [(f"radical/v{i % 3}/siru", i.to_bytes(4, "big")) for i in range(500)]
+    for k, d in sent:
+        b.put(k, d, block=True)
+    a.put("radical/v0/diag", b"own", remote_only=True)
+    b.put("radical/v0/tlm/small", b"4 chunks: not matched", block=True)
+    got: list = []
+    sync(lambda: True)
+    end = time.monotonic() + 10
+    while len(got) < len(sent) and time.monotonic() < end:
+        item = box.try_recv()
+        if item is None:
+            time.sleep(0.005)
+        else:
+            got.append(item)
+    assert got == sent and box.try_recv() is None
+    woke: list = []
+    th = threading.Thread(target=lambda: woke.append(box.recv()))
+    th.start()
+    time.sleep(0.1)
+    assert th.is_alive()  # recv waits for a sample
+    box.wake()
+    th.join(5)
+    assert not th.is_alive() and woke == [None]
+    b.put("radical/v7/st1", b"after", block=True)
+    sync(lambda: True)
+    assert box.recv() == ("radical/v7/st1", b"after")
+    assert box.take_dropped() == {}
+    box.undeclare()
 
 
 def _poll(pred, timeout=10.0):
@@ -138,3 +175,23 @@ def test_zenoh_refuses_non_loopback_and_reports_open_errors(tmp_path):
             ZenohTransport("peer", listen=[f"tcp/127.0.0.1:{port}"])
     finally:
         a.close()
+
+
+def test_in_memory_inbox_full_waits_then_drops_and_counts():
+    bus = InMemoryBus()
+    a, b = InMemoryTransport(bus), InMemoryTransport(bus)
+    box = a.inbox("k/*", capacity=2, wait_s=0.05)
+    for i in range(5):
+        b.put("k/x" if i % 2 else "k/y", bytes([i]))
+    assert box.pending() == 2 and box.take_dropped() == {"k/y": 2, "k/x": 1}
+    assert box.take_dropped() == {}  # counted once
+    assert [box.try_recv(), box.try_recv(), box.try_recv()] == [("k/y", b"\x00"), ("k/x", b"\x01"), None]
+    b.put("k/x", b"a")
+    b.put("k/x", b"b")
+    box.wait_s = 5.0
+    t = threading.Thread(target=lambda: (time.sleep(0.1), box.try_recv()))
+    t.start()
+    b.put("k/x", b"c")  # full: waits until the reader makes room, then enters
+    t.join()
+    assert box.take_dropped() == {} and [box.try_recv(), box.try_recv()] == [("k/x", b"b"),
+                                                                            ("k/x", b"c")]
