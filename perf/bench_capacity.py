@@ -200,7 +200,7 @@ def markdown(res: dict[str, Any]) -> str:
                      f"{'yes' if r['pass'] else '**no**'} |")
     lines += ["", "Late SIRU messages (service > 10 ms): median time per stage, and the node's garbage "
               "collections in the measured window:", "",
-              "| vehicles | late | hop in | queue wait | feed | publish (ms) | late during a GC | "
+              "| vehicles | late | hop in (incl. FIFO) | wait | feed | publish (ms) | late during a GC | "
               "GC gen 0/1/2 count | gen 2 max (ms) |", "|---|---|---|---|---|---|---|---|---|"]
     for n, r in res["steps"].items():
         b = r.get("late_breakdown_ms") or {}

@@ -25,7 +25,7 @@ Latencies (ms; p50/p90/p99/p99.9/max over the measured window):
 * ``service``: publication of a SIRU message → the node has fed it and published its outputs;
 * ``inclusion``: publication of a SIRU sample → reception of the first packet with ``t`` ≥ the
   sample's reconstructed time;
-* node internal (subscriber callback → outputs published) and the Zenoh hops in and out.
+* node internal (taken from the input FIFO → outputs published) and the Zenoh hops in and out.
 
 A deadline miss is a latency above the 10 ms SIRU sample period. The regression checks
 (:func:`checks`) are ratios and miss fractions measured in the same run, never absolute times.
@@ -165,12 +165,12 @@ def markdown(res: dict[str, Any]) -> str:
                  r["inclusion_ms"], _miss(r["inclusion_misses"])),
             _row(f"{name}: service, SIRU message published → node fed + published",
                  r["service_ms"], _miss(r["service_misses"])),
-            _row(f"{name}: node internal, callback → packet published", r["node_to_packet_ms"]),
-            _row(f"{name}: node internal, callback → done (all messages)", r["node_total_ms"]),
-            _row(f"{name}: of which queue wait", r["node_queue_ms"]),
+            _row(f"{name}: node internal, taken → packet published", r["node_to_packet_ms"]),
+            _row(f"{name}: node internal, taken → done (all messages)", r["node_total_ms"]),
+            _row(f"{name}: of which wait before the feed", r["node_queue_ms"]),
             _row(f"{name}: of which StreamProcessor.feed", r["node_feed_ms"]),
             _row(f"{name}: of which publishing", r["node_publish_ms"]),
-            _row(f"{name}: Zenoh hop in (publish → node callback)", r["hop_in_ms"]),
+            _row(f"{name}: Zenoh hop in (publish → taken from the FIFO)", r["hop_in_ms"]),
             _row(f"{name}: Zenoh way out (node starts publishing → received)", r["hop_out_ms"]),
             _row(f"{name}: warm-up ({res['warmup_s']:g} s): reaction", r["reaction_warmup_ms"]),
         ]

@@ -7,7 +7,7 @@ Each measurement runs real processes on loopback Zenoh:
   CLOCK_MONOTONIC, the instant just before every ``put`` and the arrival of every ``tlm/*``
   packet. It is at once the replayer and the ground station;
 * ``radical node`` connecting to it, with ``--timing-out`` so that its filter loop records the
-  callback/loop/fed/published instants of every message (:class:`radical_rt.node.LoopTiming`);
+  taken/fed/published instants of every message (:class:`radical_rt.node.LoopTiming`);
 * for the reference, a **ping** and a **pong** process (``python -m perf.live ping|pong``)
   bouncing 96-byte msgpack messages at 100 Hz.
 
@@ -28,8 +28,9 @@ Analysis (:func:`analyse`), per vehicle, after the warm-up:
   it: whose ``t`` is at least the sample's reconstructed time (the node's own clock, replayed
   offline here) less half a sample period (``INCLUSION_TOL_S``: a sample-triggered packet's ``t``
   is the clock's prediction for the newest read, µs off the value reconstructed later);
-* node-internal: callback → published (``node_total``), split into queue wait, StreamProcessor and
-  publish; the Zenoh hop in (``hop_in``: publication → node callback) and the way out
+* node-internal: taken from the node's input FIFO → published (``node_total``), split into the
+  wait before the feed, StreamProcessor and publish; the Zenoh hop in (``hop_in``: publication →
+  the filter loop takes it from its FIFO, so the FIFO wait is included) and the way out
   (``hop_out``: the node starts publishing a message's outputs → the packet is received; ``put``
   returns after the subscriber may already have the packet, so the end of publishing is no
   reference).
@@ -832,7 +833,7 @@ def analyse(run: NodeRun, stream: dict[str, Any], warmup_s: float, measure_s: fl
         out["node_queue_ms"] = pct(cat(node_q))
         out["node_feed_ms"] = pct(cat(node_sp))
         out["node_publish_ms"] = pct(cat(node_pub))
-        # callback → packet published, for the messages that published tlm packets
+        # taken from the FIFO → packet published, for the messages that published tlm packets
         out["node_to_packet_ms"] = pct(cat(node_pkt))
         out["reaction_ms"] = pct(cat(react) if react else np.zeros(0))
         out["reaction_misses"] = misses(cat(react) if react else np.zeros(0))
@@ -899,7 +900,7 @@ def analyse(run: NodeRun, stream: dict[str, Any], warmup_s: float, measure_s: fl
 def _late_and_gc(st: np.ndarray, tm: dict[str, np.ndarray], t0: int, t1: int) -> dict[str, Any]:
     """Where the time of the late SIRU messages went, and the node's garbage collections.
 
-    st: (n, 5) publish, callback, loop start, fed, done stamps of the measured SIRU messages.
+    st: (n, 5) publish, taken, loop start, fed, done stamps of the measured SIRU messages.
     """
     out: dict[str, Any] = {}
     late = st[(st[:, 4] - st[:, 0]) > DEADLINE_NS]

@@ -1,9 +1,16 @@
 """The single Numba policy of RADICAL-RT.
 
 Every compiled kernel is declared with :func:`kernel`: ``cache=True`` (compiled once, loaded from
-``__pycache__`` afterwards), ``fastmath=False`` (bit-reproducible), ``nogil=True`` (Zenoh and
-dashboard threads keep running while a kernel works), ``error_model='numpy'`` (no Python exceptions
-for division by zero inside kernels; kernels return status codes instead).
+``__pycache__`` afterwards), ``fastmath=False`` (bit-reproducible), ``nogil=False``,
+``error_model='numpy'`` (no Python exceptions for division by zero inside kernels; kernels return
+status codes instead).
+
+``nogil=False``: the kernels run for microseconds, and releasing the GIL around each of them
+(about 20 calls per input message) handed it to any other Python thread that wanted it, and the
+filter loop then waited to get it back. With Zenoh callback threads in the node this ping-pong
+was measured to cost about a sixth of the node's capacity (perf/README.md). Numba's cache index
+does not see a change of these flags: after editing ``_POLICY``, delete the ``*.nbi``/``*.nbc``
+files under ``__pycache__`` (a clean checkout, as in CI, has none).
 """
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ class Vehicle:
             raise ValueError(f"vehicle name {name!r} must match [a-z0-9_-]+")
         self.node, self.name, self.sp = node, name, sp
         self.prefix = f"radical/{name}/"
-        self.lock = threading.Lock()  # guards the callback-side counters below
+        self.lock = threading.Lock()  # guards the counters below (read by status/diag)
         self.received: dict[str, int] = defaultdict(int)
         self.overflow: dict[str, int] = defaultdict(int)
         self.fed: dict[str, int] = defaultdict(int)  # loop thread only
@@ -118,9 +118,9 @@ class LoopTiming:
     """Optional per-message timing of the filter loop (``radical node --timing-out``, perf/).
 
     One record per message the loop takes: vehicle and topic indices, CLOCK_MONOTONIC ns stamps
-    (comparable across processes on one host) at the subscriber callback (``recv_ns``), when the
-    loop took it (``start_ns``), after the StreamProcessor (``fed_ns``) and after its outputs were
-    published (``done_ns``), and the tlm packets it published, packed as
+    (comparable across processes on one host) when the loop took it from its input FIFO
+    (``recv_ns``), before the StreamProcessor (``start_ns``), after it (``fed_ns``) and after its
+    outputs were published (``done_ns``), and the tlm packets it published, packed as
     ``n_small | n_medium << 8 | n_large << 16``. Records go to a flat int64 ``array`` (56 B each).
     With :meth:`watch_gc`, every garbage collection of the process is recorded too (start, stop,
     generation).

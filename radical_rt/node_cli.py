@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds of wall time between checkpoints (default 60)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--queue-size", type=int, default=4096, metavar="N",
-                   help="input queue length in messages (default 4096)")
+                   help="input FIFO capacity in samples (default 4096; full: back-pressure)")
     p.add_argument("--block-outputs", action="store_true",
                    help="BLOCK congestion control for all outputs (default: fault only)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))

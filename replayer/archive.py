@@ -350,7 +350,8 @@ class ArchiveReader:
         log_time order is chunk by chunk, each chunk's messages stably sorted by log_time (ties in
         file order), as the merge of the mcap reader gives it, without a heap over every message."""
         ci = sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-        if not ci or any(b.message_start_time < a.message_end_time for a, b in zip(ci, ci[1:])):
+        if not ci or any(b.message_start_time < a.message_end_time
+                         for a, b in zip(ci[:-1], ci[1:], strict=True)):
             return None
         return ci
 
