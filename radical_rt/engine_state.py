@@ -123,13 +123,16 @@ class EngineState:
         """Every parameter variance within its convergence threshold (the engine implements it)."""
         raise NotImplementedError
 
+    def att_sigma(self) -> list[float]:
+        """Attitude 1σ, body axes [rad] (from the UD variances)."""
+        return np.sqrt(self.variances()[:3]).tolist()
+
     def snapshot(self) -> dict[str, Any]:
         """Everything a telemetry packet may contain (SI, plain Python types)."""
-        var = self.variances()
         return {
             "t": self.t, "q_body_from_inertial": self.q.tolist(), "flags": int(self.flags),
             "mode": self.mode, "omega_body": self.omega.tolist(), "est": self.estimates(),
-            "sigma": self.sigmas(), "att_sigma": np.sqrt(var[:3]).tolist(),
+            "sigma": self.sigmas(), "att_sigma": self.att_sigma(),
             "residuals": self.residual_stats(), "counters": dict(self.counters),
             "excluded": [int(i) for i in np.nonzero(self.excluded)[0]],
         }

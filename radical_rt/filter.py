@@ -56,6 +56,7 @@ class Engine(EngineState):
         self._phi_p = _psl(self.layout, "phi2")  # φ2 inside xp
         self._phi_col, self._lat_col = self.layout["phi2"].start, self.layout["lat"].start
         self._rate2 = 0.0  # |ω̂|² at the last tracker update [rad²/s²]
+        self._views: dict[int, tuple[np.ndarray, ...]] = {}
         self.params_changed()
         self.cold_start()
         self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
@@ -67,6 +68,7 @@ class Engine(EngineState):
         self.q_params = np.asarray(self.si.q_params)
         self.conv_var = np.asarray(self.si.conv_sigma) ** 2
         self.st_sigma = np.asarray(self.si.st_sigma)  # rad, tracker axes, at st_ref_stars
+        self._var_cache: dict[int, tuple[np.ndarray, float]] = {}  # see _tracker_var
 
     # ---------------------------------------------------------------- starts and bumps
     def cold_start(self) -> None:
@@ -311,24 +313,30 @@ class Engine(EngineState):
     def _vector_update(self, kind: str, H, z, rdiag, gate: float, consider=None) -> bool:
         """Gated update with rows H (m, ns); records innovations, σ and NIS for diagnostics.
         consider (ns,) bool: Schmidt consider states (not corrected, covariance kept)."""
-        m = H.shape[0]
+        F, S, innov, sig = self._update_views(H.shape[0])
         if consider is None:
             status, nis, edited = gated_update(
-                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, self.Fbuf[:m],
-                self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f, self.ws.v, self.ws.k)
+                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, F, S, innov, sig,
+                self.ws.f, self.ws.v, self.ws.k)
         else:
             status, nis, edited = gated_update_consider(
-                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, consider,
-                self.Fbuf[:m], self.Sbuf[:m, :m], self.innov[:m], self.sig[:m], self.ws.f,
-                self.ws.v, self.ws.k, self.ws.a)
+                self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, consider, F, S,
+                innov, sig, self.ws.f, self.ws.v, self.ws.k, self.ws.a)
         self._check(status)
-        self.diag_last[kind] = (self.innov[:m].copy(), self.sig[:m].copy(), float(nis))
+        self.diag_last[kind] = (innov.copy(), sig.copy(), float(nis))
         if edited:
-            self.counters[f"{kind}_edited"] += 1
+            self.counters[kind + "_edited"] += 1
             return False
-        self.counters[f"{kind}_used"] += 1
+        self.counters[kind + "_used"] += 1
         self.nis_sum[kind] += nis
         return True
+
+    def _update_views(self, m: int) -> tuple[np.ndarray, ...]:
+        """Views (F, S, innov, sig) of the update buffers for m rows (made once per m)."""
+        v = self._views.get(m)
+        if v is None:
+            v = self._views[m] = (self.Fbuf[:m], self.Sbuf[:m, :m], self.innov[:m], self.sig[:m])
+        return v
 
     def _correlated_update(self, kind: str, H, z, R, consider=None) -> bool:
         """Gated update with a full noise covariance R (m, m): whitened (ud.decorrelate) rows, then
@@ -411,6 +419,15 @@ class Engine(EngineState):
     def _tracker_sigma(self, n_stars: int) -> np.ndarray:
         return self.st_sigma * math.sqrt(self.si.st_ref_stars / max(n_stars, 1))
 
+    def _tracker_var(self, n_stars: int) -> tuple[np.ndarray, float]:
+        """Tracker noise variances (3,) [rad², tracker axes] for n_stars, and their minimum
+        (cached per star count until the parameters change)."""
+        hit = self._var_cache.get(n_stars)
+        if hit is None:
+            rdiag = self._tracker_sigma(n_stars) ** 2
+            hit = self._var_cache[n_stars] = (rdiag, float(rdiag.min()))
+        return hit
+
     def _mounting(self, j: int):
         if j == 1:
             return self.geo.R_st1_from_body, False
@@ -452,10 +469,10 @@ class Engine(EngineState):
     def _tracker_update(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
         H, R_nom = self._tracker_rows(j, t_epoch, q_meas)
         kind = _ST_KIND[j]
-        rdiag = self._tracker_sigma(n_stars) ** 2
+        rdiag, rmin = self._tracker_var(n_stars)
         sig_t = self.timing_sigma()
         # |R ω̂|² = |ω̂|²: attitude error per second of epoch error, tracker axes [rad/s]
-        ratio = sig_t * sig_t * self._rate2 / float(rdiag.min())
+        ratio = sig_t * sig_t * self._rate2 / rmin
         if ratio > 1e-4:  # below, the timing term is < 0.01 % of the tracker variance
             # Epoch error δt of the gyro time line → attitude error R ω̂ δt (rank one in tracker
             # axes). While it is not small against the tracker noise (clock not locked, body

@@ -46,7 +46,7 @@ CATALOGUE: dict[str, tuple[str, Callable[[Any], Any]]] = {
     "omega_body": ("body rate estimate [rad/s]", lambda s: s.engine.omega.tolist()),
     "est": ("parameter estimates per group, SI", lambda s: s.engine.estimates()),
     "sigma": ("parameter 1σ per group, SI", lambda s: s.engine.sigmas()),
-    "att_sigma": ("attitude 1σ, body axes [rad]", lambda s: s.engine.snapshot()["att_sigma"]),
+    "att_sigma": ("attitude 1σ, body axes [rad]", lambda s: s.engine.att_sigma()),
     "residuals": ("last innovations, 1σ and NIS per kind (st1, st2 [rad]; parity [rad])",
                   lambda s: s.engine.residual_stats()),
     "clock": ("SIRU clock reconstruction state", lambda s: s.clock.telemetry()),
