@@ -30,7 +30,6 @@ after the correction is folded in, so batch and streaming runs take identical de
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -188,56 +187,80 @@ class ParityDetector:
 
 # ----------------------------------------------------------------------------- buffers
 class _SampleBuffer:
-    """Recent gyro batches as the engine received them (references; the clock's output arrays are
-    never written again), time order. A list with a moving start and the batches' last times for
-    bisection."""
+    """Recent gyro samples as the engine received them, time order, copied into growing blocks
+    (one float block t, dt, var_extra, dθ; one int block status; one bool block bridged) with a
+    moving start: about 70 bytes per sample, so ``BUFFER_S`` of history costs a few MB per vehicle
+    (keeping the clock's batches themselves cost about 1.5 kB per sample, and the history grew
+    with the stream until a late compaction)."""
+
+    _COLS = 3  # t, dt, var_extra; then the n increments
 
     def __init__(self) -> None:
-        self.batches: list = []
-        self.ends: list[float] = []
-        self.i0 = 0
+        self.clear()
 
     def clear(self) -> None:
-        self.batches, self.ends, self.i0 = [], [], 0
+        self._f = np.empty((0, 0))
+        self._i = np.empty(0, np.int64)
+        self._b = np.empty(0, np.bool_)
+        self.i0 = self.end = 0
+
+    def __len__(self) -> int:
+        return self.end - self.i0
 
     def append(self, arrays) -> None:
-        t = arrays[0]
-        if len(t):
-            self.batches.append(arrays)
-            self.ends.append(float(t[-1]))
+        t, dt, dth, status, bridged, var_extra = arrays
+        m = len(t)
+        if m == 0:
+            return
+        if self._f.shape[1] != self._COLS + dth.shape[1] or self.end + m > len(self._i):
+            self._make_room(m, dth.shape[1])
+        r = slice(self.end, self.end + m)
+        f = self._f
+        f[r, 0], f[r, 1], f[r, 2], f[r, self._COLS:] = t, dt, var_extra, dth
+        self._i[r], self._b[r] = status, bridged
+        self.end += m
+
+    def _make_room(self, m: int, n: int) -> None:
+        """Move the kept samples to the front; grow (×2) if they and m more do not fit."""
+        keep = self.end - self.i0 if self._f.shape[1] == self._COLS + n else 0
+        cap = max(len(self._i), 1024)
+        while keep + m > cap // 2 and keep + m > 1024:
+            cap *= 2
+        if cap != len(self._i) or self._f.shape[1] != self._COLS + n:
+            f, i, b = np.empty((cap, self._COLS + n)), np.empty(cap, np.int64), np.empty(cap, np.bool_)
+        else:
+            f, i, b = self._f, self._i, self._b
+        if keep:
+            src = slice(self.i0, self.i0 + keep)
+            f[:keep], i[:keep], b[:keep] = self._f[src], self._i[src], self._b[src]
+        self._f, self._i, self._b = f, i, b
+        self.i0, self.end = 0, keep
 
     def drop_before(self, t_min: float) -> None:
-        self.i0 = bisect.bisect_left(self.ends, t_min, self.i0)
-        if self.i0 > 4096 and self.i0 > len(self.batches) // 2:
-            del self.batches[:self.i0], self.ends[:self.i0]
-            self.i0 = 0
+        """Forget the samples with t < t_min."""
+        t = self._f[self.i0:self.end, 0] if self.end > self.i0 else None
+        if t is not None:
+            self.i0 += int(np.searchsorted(t, t_min, side="left"))
 
     def take(self, t_after: float, t_upto: float):
-        """The samples with t_after < t ≤ t_upto as (t, dt, dθ, status, bridged, var_extra), or
-        None. The arrays are column views of one float and one int block, the memory layout of
-        the clock's batches, so the propagation kernel runs the engine's compiled specialization."""
-        parts = []
-        for k in range(bisect.bisect_right(self.ends, t_after, self.i0), len(self.batches)):
-            b = self.batches[k]
-            t = b[0]
-            if t[0] > t_upto:
-                break
-            i = int(np.searchsorted(t, t_after, side="right"))
-            j = int(np.searchsorted(t, t_upto, side="right"))
-            if j > i:
-                parts.append((i, j, b))
-        m = sum(j - i for i, j, _ in parts)
-        if m == 0:
+        """Copies of the samples with t_after < t ≤ t_upto as (t, dt, dθ, status, bridged,
+        var_extra), or None. The arrays are column views of one float and one int block, the
+        memory layout of the clock's batches, so the propagation kernel runs the engine's compiled
+        specialization."""
+        if self.end == self.i0:
             return None
-        n = parts[0][2][2].shape[1]
-        fb, ib, bb = np.empty((m, 3 + n)), np.empty((m, 2), np.int64), np.empty(m, np.bool_)
-        k = 0
-        for i, j, (t, dt, dth, status, bridged, var_extra) in parts:
-            r = slice(k, k + j - i)
-            fb[r, 0], fb[r, 1], fb[r, 2], fb[r, 3:] = t[i:j], dt[i:j], var_extra[i:j], dth[i:j]
-            ib[r, 0], bb[r] = status[i:j], bridged[i:j]
-            k += j - i
-        return fb[:, 0], fb[:, 1], fb[:, 3:], ib[:, 0], bb, fb[:, 2]
+        t = self._f[self.i0:self.end, 0]
+        a = self.i0 + int(np.searchsorted(t, t_after, side="right"))
+        z = self.i0 + int(np.searchsorted(t, t_upto, side="right"))
+        if z <= a:
+            return None
+        src = self._f[a:z]
+        fb = np.empty_like(src)
+        fb[...] = src
+        ib = np.empty((z - a, 2), np.int64)
+        ib[:, 0] = self._i[a:z]
+        bb = self._b[a:z].copy()
+        return fb[:, 0], fb[:, 1], fb[:, self._COLS:], ib[:, 0], bb, fb[:, 2]
 
 
 @dataclass
