@@ -58,8 +58,9 @@ def default_config() -> str:
 
 def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: str | None = None,
         steps: tuple[int, ...] | list[int] | None = None, cpus: list[int] | None = None,
-        aligned: bool = False) -> dict[str, Any]:
-    """Step the number of vehicles; returns (and writes ``capacity_<profile>.json``) the result."""
+        aligned: bool = False, rt_priority: int | None = None) -> dict[str, Any]:
+    """Step the number of vehicles; returns (and writes ``capacity_<profile>.json``) the result.
+    rt_priority: ``radical node --rt-priority`` (SCHED_FIFO filter loop; None: time-sharing)."""
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}; use one of {', '.join(PROFILES)}")
     prof = PROFILES[profile]
@@ -70,7 +71,8 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
     res: dict[str, Any] = {"schema": "radical.bench.capacity/1", "profile": profile,
                            "machine": live.machine_info(), "cpus": cpus, "config": config,
                            "warmup_s": prof["warmup_s"], "measure_s": prof["measure_s"],
-                           "aligned": aligned, "deadline_ms": live.DEADLINE_NS / 1e6,
+                           "aligned": aligned, "rt_priority": rt_priority,
+                           "deadline_ms": live.DEADLINE_NS / 1e6,
                            "max_miss_frac": MAX_MISS_FRAC, "steps": {}}
     with tempfile.TemporaryDirectory(prefix="radical-capacity-") as tmp:
         work = Path(tmp)
@@ -83,8 +85,9 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
                                         growth_s=prof.get("growth_s"))
 
         def step(n: int) -> bool:
-            run_ = live.node_session(stream_path, n, packets, cpus, work, tag=f"n{n}",
-                                     aligned=aligned)
+            run_ = live.node_session(
+                stream_path, n, packets, cpus, work, tag=f"n{n}", aligned=aligned,
+                node_args=["--rt-priority", str(rt_priority)] if rt_priority else None)
             r = live.analyse(run_, stream, prof["warmup_s"], prof["measure_s"], samples)
             r["timing_mb"] = _timing_mb(run_, prof["warmup_s"])
             r["rss_net_mb"] = (r["rss_at_warmup_end_mb"] - r["timing_mb"]
@@ -185,7 +188,9 @@ def _f(x: Any, nd: int = 2) -> str:
 def markdown(res: dict[str, Any]) -> str:
     cap = res["capacity_vehicles"]
     bound = "" if res["bounded"] else f" (no step failed: ≥ {cap})"
-    lines = [f"Packet config `{res['config']}`, CPUs {res['cpus']}, {res['measure_s']:g} s measured per "
+    sched = (f"filter loop SCHED_FIFO {res['rt_priority']}" if res.get("rt_priority")
+             else "filter loop time-sharing")
+    lines = [f"Packet config `{res['config']}`, {sched}, CPUs {res['cpus']}, {res['measure_s']:g} s measured per "
              f"step after {res['warmup_s']:g} s of warm-up; pass = every message fed and < "
              f"{100 * res['max_miss_frac']:g} % of SIRU messages served later than 10 ms; load "
              f"average at start {res['machine'].get('loadavg')}.", "",
@@ -238,11 +243,13 @@ def main() -> None:
     ap.add_argument("--steps", help="vehicle counts, e.g. 1,2,4,8 (default: the profile's)")
     ap.add_argument("--cpus", help="CPU list for every process, e.g. 0,1 (default: first two)")
     ap.add_argument("--aligned", action="store_true", help="no phase offsets between vehicles")
+    ap.add_argument("--rt-priority", type=int, metavar="N",
+                    help="run the node's filter loop SCHED_FIFO at priority N (needs root)")
     a = ap.parse_args()
     print(markdown(run(a.profile, a.out, config=a.config,
                        steps=[int(x) for x in a.steps.split(",")] if a.steps else None,
                        cpus=[int(c) for c in a.cpus.split(",")] if a.cpus else None,
-                       aligned=a.aligned)))
+                       aligned=a.aligned, rt_priority=a.rt_priority)))
 
 
 if __name__ == "__main__":

@@ -53,9 +53,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="input FIFO capacity in samples (default 4096; full: back-pressure)")
     p.add_argument("--block-outputs", action="store_true",
                    help="BLOCK congestion control for all outputs (default: fault only)")
+    p.add_argument("--rt-priority", type=int, metavar="N",
+                   help="run the filter loop with the real-time policy SCHED_FIFO at priority "
+                        "N (1-99; needs root or CAP_SYS_NICE; default: time-sharing)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     p.add_argument("--timing-out", metavar="PATH.npz",
-                   help="record per-message filter-loop timing (monotonic ns: callback, loop, fed, "
+                   help="record per-message filter-loop timing (monotonic ns: taken, loop, fed, "
                         "published) and garbage collections; write them to PATH.npz at exit "
                         "(perf/bench_latency.py)")
 
@@ -79,6 +82,8 @@ def _check(args: argparse.Namespace) -> str | None:
         return "--duration must be > 0"
     if args.queue_size < 1:
         return "--queue-size must be ≥ 1"
+    if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
+        return "--rt-priority must be 1..99"
     if args.resume_bump and not args.resume:
         return "--resume-bump needs --resume"
     for opt, path in (("--checkpoint", args.checkpoint), ("--timing-out", args.timing_out)):
@@ -108,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if err:
         return _fail(err)
     from .checkpoint import CheckpointError
-    from .node import FilterNode, LoopTiming, build_processors, warm_up
+    from .node import FilterNode, LoopTiming, NodeStartError, build_processors, warm_up
     from .params import ParamError
     from .telemetry import PacketError
     from .transport import TransportError, ZenohTransport
@@ -137,7 +142,8 @@ def run(args: argparse.Namespace) -> int:
         timing.watch_gc()
     node = FilterNode(transport, processors, checkpoint_path=args.checkpoint,
                       checkpoint_every_s=args.checkpoint_every, queue_size=args.queue_size,
-                      block_outputs=args.block_outputs, timing=timing)
+                      block_outputs=args.block_outputs, timing=timing,
+                      rt_priority=args.rt_priority)
     stop = threading.Event()
     got: list[str] = []
 
@@ -145,9 +151,13 @@ def run(args: argparse.Namespace) -> int:
         got.append(signal.Signals(signum).name)
         stop.set()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         node.start()
+    except NodeStartError as exc:
+        transport.close()
+        return _fail(str(exc))
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
         log.info("listening on %s, connecting to %s; ready", listen or "-", connect or "-")
         end = time.monotonic() + args.duration if args.duration else None
         while not stop.is_set():

@@ -412,3 +412,66 @@ def test_periodic_final_and_resume(archives, tmp_path):  # noqa: F811
         assert mn2.sp("v1").engine.mode in ("converging", "converged")
     finally:
         mn2.close()
+
+
+# ------------------------------------------------------------------------------ real-time loop
+def _fifo_allowed() -> bool:
+    """Whether this process may give a thread SCHED_FIFO (root or CAP_SYS_NICE)."""
+    import threading
+
+    ok = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            ok.append(True)
+        except OSError:
+            ok.append(False)
+
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join()
+    return ok[0]
+
+
+def test_rt_priority_runs_the_loop_sched_fifo_or_refuses_clearly(archives):  # noqa: F811
+    from radical_rt.node import NodeStartError
+
+    with pytest.raises(ValueError, match="rt_priority"):
+        FilterNode(InMemoryTransport(InMemoryBus()), build_processors(["v1"]), rt_priority=0)
+    bus = InMemoryBus()
+    node = FilterNode(InMemoryTransport(bus), build_processors(["v1"]), rt_priority=7)
+    if not _fifo_allowed():
+        with pytest.raises(NodeStartError, match="SCHED_FIFO priority 7.*CAP_SYS_NICE"):
+            node.start()
+        assert node._thread is None and node._inbox is None and not node.running
+        return
+    node.start()
+    try:
+        tid = node._thread.native_id
+        assert os.sched_getscheduler(tid) == os.SCHED_FIFO
+        assert os.sched_getparam(tid).sched_priority == 7
+        client = InMemoryTransport(bus)
+        msgs = input_messages(archives["a60"])[:300]
+        for topic, _ns, data in msgs:
+            client.put(f"radical/v1/{topic}", data)
+        assert node.wait_idle(30)
+        assert sum(node.vehicles["v1"].fed.values()) == len(msgs)
+    finally:
+        node.stop()
+    assert os.sched_getscheduler(0) != os.SCHED_FIFO  # only the loop thread was changed
+
+
+def test_rt_priority_refused_leaves_nothing_running(monkeypatch):
+    from radical_rt import node as node_mod
+    from radical_rt.node import NodeStartError
+
+    def refuse(*_a):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(node_mod.os, "sched_setscheduler", refuse)
+    node = FilterNode(InMemoryTransport(InMemoryBus()), build_processors(["v1"]), rt_priority=3)
+    with pytest.raises(NodeStartError, match="priority 3: Operation not permitted"):
+        node.start()
+    assert node._thread is None and node._ticker is None and node._inbox is None
+    assert not node.running
