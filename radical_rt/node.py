@@ -8,7 +8,8 @@ Threads and ownership:
   is kept. No callback runs per sample: the filter loop pulls the samples itself. (Each subscriber
   callback of the Zenoh binding runs on a Python thread of its own that competes with the filter
   loop for the GIL; with a callback and a queue per vehicle a node served 24 vehicles at real time
-  on 2 cores, with one callback thread 40, with the pulled FIFO 56: perf/README.md.) A full Zenoh
+  on 2 cores, with one callback thread 40, with the pulled FIFO 56 (10-s steps; 47 with the
+  60-s steps of the full profile): perf/README.md.) A full Zenoh
   FIFO back-pressures the session (BLOCK publishers wait, DROP publishers drop on their side); the
   in-memory one makes its publisher wait up to ``queue_wait_s``, then drops and counts
   (``queue_overflow``, visible in diag and status, INPUT_REJECTED set);
@@ -224,7 +225,7 @@ class FilterNode:
     real-time policy SCHED_FIFO at this priority (1–99; needs root or CAP_SYS_NICE; None: the
     default time-sharing policy). The loop blocks whenever its FIFO is empty, so it only takes the
     CPU when there is input, and then ahead of the Zenoh and other threads of the machine: on
-    2 cores this raised the capacity from 47 to 52 vehicles (perf/README.md).
+    2 cores this raised the capacity from 47 to 51 vehicles (perf/README.md).
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]

@@ -499,3 +499,13 @@ def test_time_ordered_chunks_read_without_merge(tmp_path, stream, archive):
         assert got and got == [e for e in ref if a <= e[1] < b and e[0] in ("/siru", "/st1")]
     with ArchiveReader(archive) as r:  # written out of time order: chunks overlap, merged read
         assert r._ordered_chunks() is None
+    # the chunk-by-chunk read checks chunk CRCs too
+    flat = write_stream(tmp_path / "flat.mcap", ordered[:200], compression="none", chunk_size=512)
+    data = bytearray(flat.read_bytes())
+    with _no_warnings_reader(flat) as r:
+        assert r._ordered_chunks() is not None
+        off = r._summary.chunk_indexes[1].chunk_start_offset + 200
+    data[off] ^= 0xFF
+    flat.write_bytes(bytes(data))
+    with ArchiveReader(flat, validate_crcs=True) as r, pytest.raises(ArchiveError, match="crc"):
+        list(r.iter_raw())
