@@ -68,7 +68,7 @@ def run(profile: str = "quick", out_dir: str | Path | None = None) -> dict[str, 
     try:
         res = _timed(profile)
     finally:
-        if pinned:
+        if allowed is not None:
             os.sched_setaffinity(0, allowed)
     res["pinned_one_cpu"] = pinned
     if out_dir is not None:

@@ -289,8 +289,9 @@ class FilterNode:
         """SCHED_FIFO at ``rt_priority`` for the filter loop thread; NodeStartError (node
         stopped again) if the system refuses."""
         try:
-            os.sched_setscheduler(thread.native_id or 0, os.SCHED_FIFO,
-                                  os.sched_param(self.rt_priority))
+            if thread.native_id is None or self.rt_priority is None:
+                raise OSError("no native thread id")
+            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(self.rt_priority))
         except (OSError, AttributeError) as exc:
             self.stop(drain_s=0.0, final_checkpoint=False)
             why = getattr(exc, "strerror", None) or exc

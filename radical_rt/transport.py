@@ -339,7 +339,7 @@ class _ZInbox:
         z = transport._z
         self._t, self._z = transport, z
         self.wake_key = _wake_key(key)
-        self._sub = transport.session.declare_subscriber(key, z.handlers.FifoChannel(capacity))
+        self._sub: Any = transport.session.declare_subscriber(key, z.handlers.FifoChannel(capacity))
 
     def _item(self, s: Any) -> tuple[str, bytes] | None:
         key = str(s.key_expr)
@@ -410,7 +410,7 @@ class ZenohTransport:
         except Exception as exc:
             raise TransportError(f"cannot open Zenoh session ({mode}, listen={list(listen)}, "
                                  f"connect={list(connect)}): {_one_line(exc)}") from None
-        self._pubs: dict[tuple[str, bool], Any] = {}
+        self._pubs: dict[tuple[str, bool, bool], Any] = {}  # (key, block, remote_only)
         self._lock = threading.Lock()
         self._decls: list[_ZHandle] = []
         self.closed = False
