@@ -219,14 +219,7 @@ def fold_correction(dx, q, xp, W, U_ax, V_ax, A, Minv, Gp, N):
             break
     if not nz:
         return -1
-    dq = np.empty(4)
-    work4 = np.empty(4)
-    rotvec_to_quat_into(dx[:3], dq)
-    dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
-    quat_mul_into(dq, q, work4)
-    for k in range(4):
-        q[k] = work4[k]
-    quat_normalize_inplace(q)
+    apply_body_rotation(q, dx[:3], np.empty(4), np.empty(4))
     for k in range(xp.shape[0]):
         xp[k] += dx[3 + k]
     dx[:] = 0.0
