@@ -120,8 +120,9 @@ class EngineState:
             self.mode = "converged" if conv else "converging"
 
     def _cov_converged(self) -> bool:
-        """Every parameter variance within its convergence threshold (the engine implements it)."""
-        raise NotImplementedError
+        """Every parameter variance within its convergence threshold (UD variances, P not formed;
+        the dense reference overrides it)."""
+        return bool(ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3))
 
     def att_sigma(self) -> list[float]:
         """Attitude 1σ, body axes [rad] (from the UD variances)."""

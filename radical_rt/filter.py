@@ -142,10 +142,6 @@ class Engine(EngineState):
         self._check(status)
         return kappa
 
-    def _cov_converged(self) -> bool:
-        """Every parameter variance within its convergence threshold (UD variances, P not formed)."""
-        return ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3)
-
     def _begin_attitude_init(self) -> None:
         self.mode = "init"
         self.att_valid = False

@@ -380,8 +380,9 @@ class _ZInbox:
 
 def _wake_key(expr: str) -> str:
     """A concrete key matched by ``expr`` that no vehicle or topic uses (upper case)."""
-    chunks = [c if c not in ("*", "**") else "WAKE" for c in expr.split("/")]
-    return "/".join(chunks[:-1] + ["WAKE"]) if chunks[-1] != "WAKE" else "/".join(chunks)
+    chunks = ["WAKE" if c in ("*", "**") else c for c in expr.split("/")]
+    chunks[-1] = "WAKE"
+    return "/".join(chunks)
 
 
 class ZenohTransport:
