@@ -192,6 +192,8 @@ def dense_gated_update(P, dx, H, z, rdiag, gate, edit_enabled, consider, S, inno
 class DenseEngine(Engine):
     """:class:`Engine` with the covariance kept dense (see the module docstring)."""
 
+    fast = False  # the compiled fast path works on the UD factors: the reference path only
+
     def __init__(self, table=None, geometry=None) -> None:
         self.P = np.zeros((0, 0))  # allocated by the first cold start (_from_ud)
         self._ud_synced = True

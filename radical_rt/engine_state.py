@@ -70,7 +70,57 @@ class EngineState:
         self.last_valid_st: dict[int, float] = {}
         self.last_numeric = ""
         self.conv_var = np.full(ns - 3, np.inf)  # convergence thresholds², set from the table
+        self.q_params = np.zeros(npar)  # parameter process noise [unit²/s], set from the table
+        self.st_sigma = np.zeros(3)  # tracker noise 1σ at st_ref_stars [rad], set from the table
         self.locked_since = math.inf  # start of the current locked run of the time line [s]
+
+    # ---------------------------------------------------------------- packed storage
+    # (owner, attribute) of every array the compiled fast path reads or writes, in the order of
+    # radical_rt.fastpath.unpack; "ws" is the UD workspace, "geo" the (copied) nominal triads.
+    _PACKED = (("", "excluded"), ("", "xp"), ("", "q"), ("", "A"), ("geo", "W"), ("geo", "U"),
+               ("geo", "V"), ("", "Minv"), ("", "Gp"), ("", "N"), ("", "Phi_aa"), ("", "Phi_ap"),
+               ("", "Q_aa"), ("", "par_y"), ("", "par_t"), ("", "acc_i"), ("", "acc_f"),
+               ("", "th_acc"), ("", "omega"), ("", "U"), ("", "d"), ("", "dx"), ("", "q_params"),
+               ("", "param_idx"), ("", "q_dt"), ("ws", "struct"), ("ws", "a"), ("ws", "var"),
+               ("", "conv_var"), ("", "kappa_last"), ("", "Hbuf"), ("", "r3"), ("", "H_att"),
+               ("", "H_phi"), ("", "Fbuf"), ("", "Sbuf"), ("", "innov"), ("", "sig"), ("ws", "f"),
+               ("ws", "v"), ("ws", "k"), ("", "st_sigma"), ("", "gyro_mask"), ("", "Hwbuf"),
+               ("", "zwbuf"), ("", "Lbuf"))
+
+    def _pack(self) -> None:
+        """Move the arrays of :attr:`_PACKED` into three flat buffers (float64, int64, bool) and
+        make the attributes views of them, so a compiled call receives the whole state as a few
+        arrays (``_fb``, ``_ib``, ``_bb`` and the layout ``_lay``: offset, rows, columns, buffer
+        per array; radical_rt.fastpath.unpack). The geometry's nominal triads are copied (the
+        Geometry object keeps its own). Every array keeps its shape and is updated in place."""
+        arrays = [getattr(self if o == "" else getattr(self, o), name) for o, name in self._PACKED]
+        kinds = [2 if a.dtype == np.bool_ else 1 if a.dtype == np.int64 else 0 for a in arrays]
+        sizes = [0, 0, 0]
+        lay = np.zeros((len(arrays), 4), np.int64)
+        for i, (a, kind) in enumerate(zip(arrays, kinds, strict=True)):
+            r, c = (a.shape[0], a.shape[1]) if a.ndim == 2 else (a.shape[0], 0)
+            lay[i] = sizes[kind], r, c, kind
+            sizes[kind] += a.size
+        bufs = (np.zeros(sizes[0]), np.zeros(sizes[1], np.int64), np.zeros(sizes[2], np.bool_))
+        self._fb, self._ib, self._bb = bufs
+        self._lay = lay
+        for i, ((owner, name), a) in enumerate(zip(self._PACKED, arrays, strict=True)):
+            o, r, c, kind = (int(x) for x in lay[i])
+            view = bufs[kind][o:o + a.size].reshape(a.shape)
+            view[...] = a
+            if owner == "geo":  # keep the Geometry untouched: the engine's own copies
+                setattr(self, "_geo_" + name, view)
+            else:
+                setattr(self if owner == "" else getattr(self, owner), name, view)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Copies (copy.deepcopy, pickle) copy each view on its own: put the copied arrays back
+        into fresh packed buffers, and forget cached views of them."""
+        self.__dict__.update(state)
+        if "_lay" in state:
+            self._pack()
+        if "_views" in state:
+            self._views: dict[int, tuple[np.ndarray, ...]] = {}
 
     # ---------------------------------------------------------------- outputs
     def variances(self) -> np.ndarray:

@@ -541,6 +541,11 @@ class FaultMonitor:
         self.failed_by_fdi.discard(int(gyro))
         self.flagged_only.discard(int(gyro))
 
+    def wake_time(self) -> float:
+        """Engine time from which :meth:`on_window` has work (−inf during an alarm): the engine's
+        compiled fast path skips the hook before it (radical_rt.fastpath)."""
+        return -math.inf if self.state == "alarm" else self._next_check
+
     def on_window(self, eng, t: float) -> None:
         """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
         an alarm the bookkeeping runs once per second of engine time (it only watches for
@@ -605,7 +610,9 @@ class FaultMonitor:
         self.gen = gen
         self.snaps.clear()
         self.bank = None
-        self.gbuf.clear()
+        # samples after the engine's time are the new history (a caller may have given the FDI
+        # the samples of a whole release before the engine processed them)
+        self.gbuf.drop_before(float(eng.t))
         self.trk.clear()
         if self.det is not None:
             self.det.reset()
@@ -752,7 +759,7 @@ class FaultMonitor:
         d: dict[str, Any] = {"state": self.state, "failed": sorted(self.failed_by_fdi)}
         if self.det is not None:
             d.update({"nu_last": _f(self.last_nu), "rho_last": _f(self.last_rho),
-                      "cusum": [self.det.s_pos, self.det.s_neg], "guarded": self.det.guarded,
+                      "cusum": [self.det.s_pos, self.det.s_neg], "guarded": bool(self.det.guarded),
                       "thresholds": {"inst": self.det.th.t_inst, "persist": self.det.th.t_persist,
                                      "cusum_h": self.det.th.cusum_h}})
         if self.alarm is not None:

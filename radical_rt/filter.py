@@ -21,9 +21,11 @@ sense axes a_i = (1+λ')w_i − du'v_i − dv'u_i, μ' = μ/(1+λ)); :meth:`Engi
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
+from . import fastpath as fp
 from . import ud
 from .engine_state import EngineState, _psl
 from .fdi import FaultMonitor
@@ -40,10 +42,17 @@ from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .state import PARAM_GROUPS, StateLayout
 from .timeupdate import close_time_window, regressor_reliability
-from .updates import gated_update, gated_update_consider
+from .updates import gated_update, gated_update_consider, timing_noise, unwhiten_diagnostics
 
 _ST_KIND = {1: "st1", 2: "st2"}
 _ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
+
+
+def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                            np.ndarray, np.ndarray]:
+    """Samples a..b−1 of gyro arrays (t, dt, dtheta, status, bridged, var_extra), as views."""
+    t, dt, dtheta, status, bridged, var_extra = arrays
+    return t[a:b], dt[a:b], dtheta[a:b], status[a:b], bridged[a:b], var_extra[a:b]
 
 
 class Engine(EngineState):
@@ -59,15 +68,19 @@ class Engine(EngineState):
         self._views: dict[int, tuple[np.ndarray, ...]] = {}
         self.params_changed()
         self.cold_start()
+        self._pack()
         self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
 
     # ---------------------------------------------------------------- configuration
     def params_changed(self) -> None:
         """Re-read the active parameter table (called after set/reset of parameters)."""
         self.si = to_si(self.table.active, self.n_gyro)
-        self.q_params = np.asarray(self.si.q_params)
-        self.conv_var = np.asarray(self.si.conv_sigma) ** 2
-        self.st_sigma = np.asarray(self.si.st_sigma)  # rad, tracker axes, at st_ref_stars
+        new = {"q_params": np.asarray(self.si.q_params, float),
+               "conv_var": np.asarray(self.si.conv_sigma, float) ** 2,
+               "st_sigma": np.asarray(self.si.st_sigma, float)}  # rad, tracker axes, at st_ref_stars
+        for name, value in new.items():  # in place (the arrays may be packed, EngineState._pack)
+            getattr(self, name)[...] = value
+        self._fast_config()
         self._var_cache: dict[int, tuple[np.ndarray, float]] = {}  # see _tracker_var
 
     # ---------------------------------------------------------------- starts and bumps
@@ -152,10 +165,13 @@ class Engine(EngineState):
         """Process reconstructed gyro samples (arrays of length m, time order, all ≤ next epoch)."""
         if self.fdi is not None:
             self.fdi.on_gyro(t, dt, dtheta, status, bridged, var_extra)
+        self._gyro_body(t, dt, dtheta, status, bridged, var_extra, 0)
+
+    def _gyro_body(self, t, dt, dtheta, status, bridged, var_extra, k: int) -> None:
+        """The reference gyro path from sample k (after the FDI hook): gaps, runs, propagation."""
         m = len(t)
-        k = 0
         gap_s = self.si.gyro_gap_s
-        any_gap = m > 0 and not dt.max() <= gap_s
+        any_gap = m > k and not dt[k:].max() <= gap_s
         while k < m:
             if not self.att_valid:  # waiting for the first tracker: nothing to propagate
                 self.counters["siru_pre_init"] += m - k
@@ -173,6 +189,168 @@ class Engine(EngineState):
                 k += 1
                 continue
             k = self._propagate(t, dt, dtheta, status, bridged, var_extra, k, stop)
+
+    def _gyro_resume(self, t, dt, dtheta, status, bridged, var_extra) -> None:
+        """Continue the reference path inside a run (as :meth:`_propagate` does after a window
+        close: to the run's end whatever happened at the close), then from there."""
+        gap = np.nonzero(dt > self.si.gyro_gap_s)[0]
+        stop = len(dt) if gap.size == 0 else int(gap[0])
+        k = self._propagate(t, dt, dtheta, status, bridged, var_extra, 0, stop)
+        self._gyro_body(t, dt, dtheta, status, bridged, var_extra, k)
+
+    def release(self, arrays, a: int, z: int, events) -> None:
+        """One release of the stream processor: for each tracker event (j, t_epoch, q_meas,
+        n_stars, valid) in epoch order, the gyro samples up to its epoch, then the sample; then
+        the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
+        (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`; the caller has given them to the
+        FDI hook). The same as the reference calls, run by :func:`fastpath.fast_release` while it
+        applies."""
+        n_ev = len(events)
+        if not self.fast:
+            self._release_ref(arrays, a, z, events)
+            return
+        ev_f, ev_i, evo_f, evo_i = self._event_buffers(n_ev)
+        for i, (j, epoch, q, n_stars, valid) in enumerate(events):
+            ev_f[i, 0] = epoch
+            ev_f[i, 1:5] = q
+            ev_i[i, 0], ev_i[i, 1], ev_i[i, 2] = j, n_stars, valid
+        t, dt, dtheta, status, bridged, var_extra = arrays
+        R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
+        k, e = a, 0
+        while k < z or e < n_ev:
+            if not self.att_valid:
+                self._release_ref(arrays, k, z, events[e:])
+                return
+            self._fast_begin()
+            reason, k, e_stop, stage = fp.fast_release(
+                t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
+                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, self._fast_io,
+                self._fast_cnt, evo_f, evo_i)
+            self._fast_end()
+            for i in range(e, e_stop):  # events the kernel completed
+                self._tracker_bookkeeping(events[i], evo_f[i], evo_i[i])
+            e = e_stop
+            if stage == 1:
+                self._tracker_done(reason, *events[e])
+                e += 1
+                continue
+            if reason == fp.R_DONE:
+                continue
+            seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], events[e][1], side="right"))
+            if reason == fp.R_SLOW:  # a gap at sample k: the reference path to the event
+                self._gyro_body(*_span(arrays, k, seg), 0)
+            else:
+                self._window_done(reason)
+                if self.att_valid or k >= seg:
+                    continue
+                self._gyro_resume(*_span(arrays, k, seg))
+            k = seg
+            if e < n_ev:
+                self.tracker(*events[e])
+                e += 1
+
+    def _release_ref(self, arrays, a: int, z: int, events) -> None:
+        """The reference path of :meth:`release` (FDI hook already called by the stream)."""
+        t = arrays[0]
+        k = a
+        for ev in events:
+            up = k + int(np.searchsorted(t[k:z], ev[1], side="right"))
+            if up > k:
+                self._gyro_body(*_span(arrays, k, up), 0)
+            k = up
+            self.tracker(*ev)
+        if z > k:
+            self._gyro_body(*_span(arrays, k, z), 0)
+
+    def _event_buffers(self, n: int) -> tuple[np.ndarray, ...]:
+        """Tracker event buffers of fastpath.fast_release for n events (grown as needed)."""
+        bufs = self._ev_bufs
+        if bufs is None or bufs[0].shape[0] < n:
+            m = max(n, 8)
+            bufs = self._ev_bufs = (np.zeros((m, 5)), np.zeros((m, 3), np.int64),
+                                    np.zeros((m, 7)), np.zeros((m, 4), np.int64))
+        return bufs
+
+    _ev_bufs: tuple[np.ndarray, ...] | None = None
+
+    def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
+        """The reference path's bookkeeping of a tracker event the fast path completed (R_DONE):
+        last valid epoch, FDI hook, update diagnostics and counters."""
+        j, t_epoch, q_meas, n_stars, _valid = ev
+        self.last_valid_st[j] = t_epoch
+        if self.fdi is not None:
+            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
+        kind = _ST_KIND[j]
+        if out_i[3]:
+            self.counters[kind + "_consider"] += 1
+        return self._update_done(kind, out_f[1:4].copy(), out_f[4:7].copy(), float(out_f[0]),
+                                 bool(out_i[1]))
+
+    def _window_done(self, reason: int) -> None:
+        """Python's share of a window close the gyro fast path handed over."""
+        if reason == fp.R_CLOSE_TAIL:
+            self._check(int(self._fast_cnt[4]))
+            self._close_tail()
+            self._apply_correction()
+        elif reason == fp.R_NUMERIC_FOLD:
+            self._numeric("sense-axis geometry singular")
+        self.on_window(self.t)
+
+    # ---------------------------------------------------------------- fast-path glue
+    fast = True  # use radical_rt.fastpath (the dense reference of perf/ turns it off)
+
+    def _fast_begin(self) -> None:
+        """Load the scalar state into the fast path's io arrays."""
+        io, cnt = self._fast_io, self._fast_cnt
+        io[0], io[1], io[2] = self.t, self.locked_since, self.timing_sigma()
+        io[3], io[4] = self._wake()
+        io[5] = self.parity_queue[0][0] if self.parity_queue else math.inf
+        last = self.last_valid_st
+        io[6], io[7] = last.get(1, -math.inf), last.get(2, -math.inf)
+        cnt[0], cnt[1], cnt[2], cnt[3] = self.flags, 0, 0, -1
+
+    def _fast_end(self) -> None:
+        """Take the scalar state back from the fast path's io arrays."""
+        io, cnt = self._fast_io, self._fast_cnt
+        self.t, self.locked_since, self.flags = float(io[0]), float(io[1]), int(cnt[0])
+        if cnt[1]:
+            self.counters["siru_used"] += int(cnt[1])
+        if cnt[2]:
+            self.counters["siru_undetermined"] += int(cnt[2])
+        if cnt[3] >= 0:
+            self.masked = bool(cnt[3])
+
+    def _fast_config(self) -> None:
+        """Scalar parameters and io arrays of the fast path (after every parameter change)."""
+        si = self.si
+        self._fast_cfg = np.array([
+            si.prop_window, si.arw_var_per_s, si.quant_var, si.regressor_k_sigma, si.parity_window,
+            si.gyro_gap_s, si.parity_lag_s, si.st_stale_s, si.timing_consider_s, self.n_gyro,
+            si.st_ref_stars, si.gate_st_nis, 1.0 if si.edit_enabled else 0.0, self._phi_col,
+            self._lat_col, self._phi_col - 3, self._lat_col - 3, si.st_min_stars], dtype=np.float64)
+        self._fast_io = np.zeros(10)
+        self._fast_cnt = np.zeros(8, np.int64)
+
+    def _wake(self) -> tuple[float, float]:
+        """(wake_t, wake_e) of radical_rt.fastpath: the event time and the engine time from which
+        :meth:`on_window` has work although the flags stay the same (−inf: at once)."""
+        if self.mode != self._mode_for(self.flags):
+            return -math.inf, -math.inf
+        wake_e = math.inf if self.fdi is None else self.fdi.wake_time()
+        src = self.wake_source
+        if src is None:
+            return math.inf, wake_e
+        wake_t, e = src()
+        return wake_t, min(wake_e, e)
+
+    def _mode_for(self, flags: int) -> str:
+        """The mode update_mode gives with an initialized attitude and these flags."""
+        if flags & int(Flag.NUMERIC) or self.excluded.any():
+            return "degraded"
+        return "converging" if flags & int(Flag.NOT_CONVERGED) else "converged"
+
+    # callable() → (wake_t, wake_e) of the listener (the stream's packets)
+    wake_source: Callable[[], tuple[float, float]] | None = None
 
     def _propagate(self, t, dt, dtheta, status, bridged, var_extra, k, stop) -> int:
         if stop < len(dt):
@@ -251,6 +429,10 @@ class Engine(EngineState):
             return
         self.kappa_last[0] = self._cov_close_window(
             self.si.arw_var_per_s * self.acc_f[0] + self.si.quant_var)
+        self._close_tail()
+
+    def _close_tail(self) -> None:
+        """The rest of a window close after the covariance: lock latch, parity sums."""
         self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
             self._queue_parity()
@@ -318,14 +500,27 @@ class Engine(EngineState):
             status, nis, edited = gated_update_consider(
                 self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, consider, F, S,
                 innov, sig, self.ws.f, self.ws.v, self.ws.k, self.ws.a)
+        return self._vector_done(kind, status, nis, edited, H.shape[0])
+
+    def _vector_done(self, kind: str, status: int, nis: float, edited, m: int) -> bool:
+        """Bookkeeping after a gated update of m rows (status check, diagnostics, counters)."""
         self._check(status)
-        self.diag_last[kind] = (innov.copy(), sig.copy(), float(nis))
+        _F, _S, innov, sig = self._update_views(m)
+        return self._update_done(kind, innov.copy(), sig.copy(), float(nis), bool(edited))
+
+    def _update_done(self, kind: str, innov, sig, nis: float, edited: bool) -> bool:
+        """Diagnostics, counters and the :attr:`on_update` hook of one measurement update."""
+        self.diag_last[kind] = (innov, sig, nis)
         if edited:
             self.counters[kind + "_edited"] += 1
-            return False
-        self.counters[kind + "_used"] += 1
-        self.nis_sum[kind] += nis
-        return True
+        else:
+            self.counters[kind + "_used"] += 1
+            self.nis_sum[kind] += nis
+        if self.on_update is not None:
+            self.on_update(kind, nis, not edited)
+        return not edited
+
+    on_update = None  # callable(kind, nis, used) after every measurement update (diagnostics)
 
     def _update_views(self, m: int) -> tuple[np.ndarray, ...]:
         """Views (F, S, innov, sig) of the update buffers for m rows (made once per m)."""
@@ -341,9 +536,10 @@ class Engine(EngineState):
         Hw, zw, L = self.Hwbuf[:m], self.zwbuf[:m], self.Lbuf[:m, :m]
         self._check(ud.decorrelate(H, z, R, Hw, zw, L))
         used = self._vector_update(kind, Hw, zw, np.ones(m), self.si.gate_st_nis, consider)
-        innov_w, sig_w, nis = self.diag_last[kind]
-        S = L @ (self.Sbuf[:m, :m]) @ L.T
-        self.diag_last[kind] = (L @ innov_w, np.sqrt(np.maximum(np.diag(S), 0.0)), nis)
+        innov_w, _sig_w, nis = self.diag_last[kind]
+        innov, sig = np.empty(m), np.empty(m)
+        unwhiten_diagnostics(L, innov_w, self.Sbuf[:m, :m], innov, sig)
+        self.diag_last[kind] = (innov, sig, nis)
         return used
 
     def timing_sigma(self) -> float:
@@ -385,6 +581,19 @@ class Engine(EngineState):
     # ---------------------------------------------------------------- tracker events
     def tracker(self, j: int, t_epoch: float, q_meas, n_stars: int, valid: bool) -> bool:
         """Star tracker j (1 or 2) sample at epoch t_epoch (gyro time line). Returns True if used."""
+        if not (self.fast and self.att_valid):
+            return self._tracker_ref(j, t_epoch, q_meas, n_stars, valid)
+        R_nom, use_phi = self._mounting(j)
+        q_meas = np.asarray(q_meas, float)
+        self._fast_begin()
+        reason = fp.fast_tracker(j, float(t_epoch), q_meas, int(n_stars), bool(valid), R_nom,
+                                 use_phi, self._fb, self._ib, self._bb, self._lay, self._fast_cfg,
+                                 self._fast_io, self._fast_cnt)
+        self._fast_end()
+        return self._tracker_done(reason, j, t_epoch, q_meas, n_stars, valid)
+
+    def _tracker_ref(self, j: int, t_epoch: float, q_meas, n_stars: int, valid: bool) -> bool:
+        """The reference path of :meth:`tracker`."""
         if not valid or n_stars < self.si.st_min_stars:
             self.counters[f"st{j}_invalid"] += 1
             return False
@@ -397,6 +606,38 @@ class Engine(EngineState):
         used = self._tracker_update(j, t_epoch, q_meas, n_stars)
         self._apply_correction()
         self.on_window(t_epoch)
+        return used
+
+    def _tracker_done(self, reason: int, j: int, t_epoch: float, q_meas, n_stars: int,
+                      valid: bool) -> bool:
+        """After :func:`radical_rt.fastpath.fast_tracker`: the bookkeeping of the reference path
+        (last valid epoch, FDI hook, update diagnostics) and the steps the kernel handed over."""
+        if reason == fp.R_TRACKER_PY:
+            return self._tracker_ref(j, t_epoch, q_meas, n_stars, valid)
+        self.last_valid_st[j] = t_epoch
+        if self.fdi is not None:
+            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
+        cnt = self._fast_cnt
+        used = False
+        if cnt[7]:
+            self.counters[_ST_KIND[j] + "_consider"] += 1
+        if cnt[6]:
+            used = self._vector_done(_ST_KIND[j], int(cnt[4]), float(self._fast_io[9]),
+                                     bool(cnt[5]), 3)
+        if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:
+            if reason == fp.R_CLOSE_TAIL:
+                self._check(int(cnt[4]))
+                self._close_tail()
+            used = self._tracker_update(j, t_epoch, q_meas, n_stars)
+            self._apply_correction()
+        elif reason == fp.R_VEC_STATUS:
+            bit = _ST_EDITED_BIT[j]
+            self.flags = (self.flags & ~bit) | (0 if used else bit)
+            self._apply_correction()
+        elif reason == fp.R_NUMERIC_FOLD:
+            self._numeric("sense-axis geometry singular")
+        if reason != fp.R_DONE:
+            self.on_window(t_epoch)
         return used
 
     def latency_residual(self) -> float:
@@ -474,13 +715,12 @@ class Engine(EngineState):
             # axes). While it is not small against the tracker noise (clock not locked, body
             # turning), it is a slowly varying bias, not white noise: the tracker then keeps the
             # attitude (and φ2) but does not calibrate the gyros (Schmidt consider).
-            v = R_nom @ self.omega
             consider = self.gyro_mask if sig_t > self.si.timing_consider_s else None
             if consider is not None:
                 self.counters[kind + "_consider"] += 1
-            used = self._correlated_update(kind, H, self.r3,
-                                           np.diag(rdiag) + sig_t * sig_t * np.outer(v, v),
-                                           consider)
+            R = np.empty((3, 3))
+            timing_noise(R_nom, self.omega, rdiag, sig_t, R)
+            used = self._correlated_update(kind, H, self.r3, R, consider)
         else:
             used = self._vector_update(kind, H, self.r3, rdiag, self.si.gate_st_nis)
         bit = _ST_EDITED_BIT[j]

@@ -22,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from .clock import ClockConfig, GyroBatch, SiruClock
+from .clock import ClockConfig, SiruClock
 from .filter import Engine
 from .flags import Flag, flag_names
+from .gyro_queue import GyroQueue
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .propagate import predict_attitude
 from .telemetry import PacketSpec, build, default_packets
@@ -49,8 +50,10 @@ class StreamProcessor:
         self.last_reject_t = -math.inf
         self._out: list[tuple[str, dict[str, Any]]] = []
         self._last_flags = None
+        self._gq = GyroQueue(engine.n_gyro)
         self._begin_stream()
         engine.listener = self._on_window
+        engine.wake_source = self._wake
         # the clock's reconstruction uncertainty enters the tracker noise as (ω̂·σ_t)²
         engine.timing_sigma_source = lambda: self.clock.tag_error_sigma_s
 
@@ -61,7 +64,7 @@ class StreamProcessor:
         self.released_t = -math.inf
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
         self._new_sample = False
-        self._gyro: list[GyroBatch] = []
+        self._gq.clear()
         self._trk: list[tuple[float, int, int, np.ndarray, int, bool]] = []
         self._seq = 0
 
@@ -103,7 +106,7 @@ class StreamProcessor:
         self.t_max = max(self.t_max, float(t_bus[-1]))
         out = self.clock.push(t_bus, tt, dth, status)
         if len(out.t):
-            self._gyro.append(out)
+            self._gq.push(out)
             self.t_now = float(out.t[-1])
             self._new_sample = True
 
@@ -124,33 +127,30 @@ class StreamProcessor:
 
     # ---------------------------------------------------------------- release to the engine
     def _release(self, watermark: float) -> None:
+        """Give the engine every tracker sample with epoch ≤ watermark and the gyro samples up to
+        the watermark, in epoch order (one :meth:`Engine.release`)."""
+        events = []
         while self._trk and self._trk[0][0] <= watermark:
             epoch, j, _seq, q, n_stars, valid = heapq.heappop(self._trk)
-            self._release_gyro(epoch)
+            events.append((j, epoch, q, n_stars, valid))
             self.released_t = max(self.released_t, epoch)
-            self.engine.tracker(j, epoch, q, n_stars, valid)
-        self._release_gyro(watermark)
-
-    def _release_gyro(self, upto: float) -> None:
-        while self._gyro:
-            b = self._gyro[0]
-            k = len(b.t) if b.t[-1] <= upto else int(b.t.searchsorted(upto, side="right"))
-            if k == 0:
-                return
-            self.engine.gyro(b.t[:k], b.dt[:k], b.dtheta[:k], b.status[:k], b.bridged[:k],
-                             b.var_extra[:k])
-            self.released_t = max(self.released_t, float(b.t[k - 1]))
-            if k == len(b.t):
-                self._gyro.pop(0)
-            else:
-                self._gyro[0] = GyroBatch(*(a[k:] for a in b))
-                return
+        gq, e = self._gq, self.engine
+        a, z = gq.head, gq.upto(watermark)
+        if z == a and not events:
+            return
+        gq.head = z  # taken before the engine runs
+        arrays = gq.arrays()
+        if z > a:
+            if e.fdi is not None:
+                e.fdi.on_gyro(*(x[a:z] for x in arrays))
+            self.released_t = max(self.released_t, float(gq.t[z - 1]))
+        e.release(arrays, a, z, events)
 
     def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
         """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
         out = self.clock.flush()
         if len(out.t):
-            self._gyro.append(out)
+            self._gq.push(out)
         self._release(math.inf)
         if self.engine.att_valid:
             self.engine.flush_parity()
@@ -190,6 +190,23 @@ class StreamProcessor:
                "input_rejected": int(sum(self.rejected.values())), "late_dropped": self.late_dropped}
         return out
 
+    def _wake(self) -> tuple[float, float]:
+        """For the engine's fast path (:mod:`radical_rt.fastpath`): the event time and the engine
+        time from which :meth:`_on_window` has work while the engine's flags stay the same
+        (−inf: now). Earlier is always safe (the hook then finds nothing to do)."""
+        if self.flags != self._last_flags:
+            return -math.inf, -math.inf
+        wake_t = self.diag.next_t
+        for spec in self.packets.values():
+            if spec.trigger == "window":
+                if spec.decimation is not None:  # counts every window close
+                    return -math.inf, -math.inf
+                wake_t = min(wake_t, spec.next_t)
+        wake_e = math.inf
+        if self._last_flags & Flag.INPUT_REJECTED and self.t_max != self.last_reject_t:
+            wake_e = self.last_reject_t + self.reject_hold_s - 1e-6  # the hold ends
+        return wake_t, wake_e
+
     def _on_window(self, t: float) -> None:
         flags = self.flags
         if flags != self._last_flags:
@@ -222,12 +239,11 @@ class StreamProcessor:
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
             return _now_fields(e.t, q, omega)
-        if self._gyro:
-            b = self._gyro
-            dth = b[0].dtheta if len(b) == 1 else np.concatenate([x.dtheta for x in b])
-            dt = b[0].dt if len(b) == 1 else np.concatenate([x.dt for x in b])
-            st = b[0].status if len(b) == 1 else np.concatenate([x.status for x in b])
-            predict_attitude(dth, dt, st, e.excluded, e.xp, e.A, e.Gp, q, omega)
+        gq = self._gq
+        if gq.end > gq.head:
+            a, b = gq.head, gq.end
+            predict_attitude(gq.dtheta[a:b], gq.dt[a:b], gq.status[a:b], e.excluded, e.xp, e.A,
+                             e.Gp, q, omega)
         t = self.t_now
         pend = self.clock.pending()  # the newest read, held back by the clock's look-ahead
         if pend is not None and math.isfinite(t):

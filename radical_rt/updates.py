@@ -101,3 +101,37 @@ def gated_update_consider(U, d, dx, H, z, rdiag, gate, edit_enabled, consider, F
         if status != 0:
             return status, nis, UPDATE_ACCEPTED
     return 0, nis, UPDATE_ACCEPTED
+
+
+@kernel
+def timing_noise(R_nom, omega, rdiag, sig_t, R_out):
+    """Tracker noise covariance with the time-line term: R_out (3, 3) ← diag(rdiag) + σ_t² v vᵀ,
+    v = R_nom ω̂ (the attitude error per second of epoch error in tracker axes [rad/s]); R_nom
+    (3, 3) R_st_from_body, omega (3,) [rad/s], rdiag (3,) [rad²], sig_t [s]."""
+    v = np.empty(3)
+    for r in range(3):
+        v[r] = R_nom[r, 0] * omega[0] + R_nom[r, 1] * omega[1] + R_nom[r, 2] * omega[2]
+    s2 = sig_t * sig_t
+    for a in range(3):
+        for b in range(3):
+            R_out[a, b] = (rdiag[a] if a == b else 0.0) + s2 * (v[a] * v[b])
+
+
+@kernel
+def unwhiten_diagnostics(L, innov_w, S_w, innov_out, sig_out):
+    """Innovation and its 1σ of a whitened update back in physical units: innov_out ← L innov_w,
+    sig_out ← sqrt(max(diag(L S_w Lᵀ), 0)); L (m, m) lower Cholesky factor of R, S_w (m, m)."""
+    m = innov_w.shape[0]
+    for a in range(m):
+        s = 0.0
+        for b in range(a + 1):
+            s += L[a, b] * innov_w[b]
+        innov_out[a] = s
+    for a in range(m):
+        s = 0.0
+        for b in range(a + 1):
+            t = 0.0
+            for c in range(a + 1):
+                t += L[a, c] * S_w[c, b]
+            s += t * L[a, b]
+        sig_out[a] = np.sqrt(s) if s > 0.0 else 0.0

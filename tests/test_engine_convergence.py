@@ -55,15 +55,11 @@ def run(path):
     sp = make_processor()
     e = sp.engine
     log = []
-    update = e._vector_update
 
-    def logged(kind, H, z, rdiag, gate, consider=None):
-        used = update(kind, H, z, rdiag, gate, consider)
-        locked = e.timing_sigma() <= e.si.timing_consider_s
-        log.append((kind, e.diag_last[kind][2], used, locked))
-        return used
+    def logged(kind, nis, used):
+        log.append((kind, nis, used, e.timing_sigma() <= e.si.timing_consider_s))
 
-    e._vector_update = logged
+    e.on_update = logged
     truth = None
     with ArchiveReader(path) as reader:
         for topic, _, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):

@@ -1,0 +1,274 @@
+"""The engine's compiled fast path: a run of gyro samples, or one tracker sample, in one Numba call.
+
+:class:`radical_rt.filter.Engine` processes events with small kernels glued by Python (the
+reference path, which the dense-covariance engine of perf/dense_engine.py also runs). Most of the
+glue does the same thing at every 10 Hz window close: close the window, fold the correction,
+re-run the convergence test, find that nothing is due. The kernels here run that common case in
+compiled code, calling the *same* kernels in the same order with the same arguments (so the
+results are bit-identical; tests/test_fastpath.py checks it), and return to Python as soon as the
+reference path would do something only Python does:
+
+* ``R_SLOW``: a gyro gap at the next sample (warm start, counters) — the reference gyro path
+  takes the rest of the run;
+* ``R_CLOSE_TAIL``: a window closed with a kernel error, or a parity sum is complete, or a queued
+  parity sum has waited its lag (parity queue, FDI parity hook, parity update);
+* ``R_TRACKER_PY``: an invalid tracker sample (counted by Python);
+* ``R_TRACKER_SLOW``: the whitening of the tracker noise with the clock's timing term failed
+  (Python redoes the update and handles the error);
+* ``R_VEC_STATUS`` / ``R_NUMERIC_FOLD``: a kernel error in the tracker update or the fold;
+* ``R_ON_WINDOW``: the window hook has work — the flags would change (stale trackers,
+  convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
+  or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
+  ending). Python then runs :meth:`Engine.on_window` exactly as the reference path does.
+
+Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
+
+``E``: tuple of the engine's arrays, in the order unpacked below (all updated in place); the
+engine passes them packed in three flat buffers (``EngineState._pack``, :func:`unpack`), which
+costs one argument each instead of one per array when Python calls the kernel.
+``cfg`` (float64[18]): prop_window, arw_var [rad²/s], quant_var [rad²], regressor_k_sigma,
+parity_window, gyro_gap_s, parity_lag_s, st_stale_s, timing_consider_s, n_gyro, st_ref_stars,
+gate_st_nis, edit_enabled, φ2 state column, τ state column, φ2 index in xp, τ index in xp,
+st_min_stars.
+``io`` (float64[10]): [0] engine time t [s] (in/out), [1] locked_since [s] (in/out), [2] σ_t of
+the time line [s], [3] wake_t, [4] wake_e [s], [5] epoch of the oldest queued parity sum (inf if
+none), [6], [7] last valid ST1, ST2 epoch [s] (−inf if none), [9] NIS of the tracker update (out).
+``cnt`` (int64[8]): [0] flags (in/out), [1] samples propagated (+=), [2] undetermined windows
+(+=), [3] PROP_MASKED of the last propagate call (the caller sets −1), [4] kernel status (out), [5]
+1 if the tracker sample was edited (out), [6] 1 if a tracker update ran (out), [7] 1 if it
+treated the gyro calibration as consider states (out).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jit import kernel
+from .flags import Flag
+from .model import fold_correction, tracker_rows
+from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
+from .timeupdate import close_time_window
+from .ud import decorrelate, variances_within
+from .updates import gated_update, gated_update_consider, timing_noise, unwhiten_diagnostics
+
+(R_DONE, R_SLOW, R_CLOSE_TAIL, R_TRACKER_SLOW, R_VEC_STATUS, R_NUMERIC_FOLD, R_ON_WINDOW,
+ R_TRACKER_PY) = range(8)
+
+_ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
+_ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
+_NOT_CONVERGED = int(Flag.NOT_CONVERGED)
+_TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
+
+
+@kernel
+def _close(E, cfg, io, cnt):
+    """Close the time-update window (as Engine._close_window). Returns True when Python must take
+    the rest of the close (kernel error, parity sum complete or due); else runs the lock latch."""
+    (Minv, Phi_aa, Phi_ap, Q_aa, acc_i, acc_f, th_acc) = (E[7], E[10], E[11], E[12], E[15], E[16],
+                                                          E[17])
+    U, d, q_params, param_idx, q_dt, struct_w, a_w, kappa_last = (E[19], E[20], E[22], E[23],
+                                                                  E[24], E[25], E[26], E[29])
+    noise_var = cfg[1] * acc_f[0] + cfg[2]
+    status, kappa = close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv,
+                                      int(cfg[9]), noise_var, cfg[3], q_params, param_idx, q_dt,
+                                      struct_w, a_w)
+    kappa_last[0] = kappa
+    cnt[4] = status
+    t = io[0]
+    if status != 0 or acc_i[1] >= cfg[4] or io[5] <= t - cfg[6]:
+        return True
+    if io[2] > cfg[8]:  # Engine._update_lock_latch
+        io[1] = math.inf
+    elif io[1] == math.inf:
+        io[1] = t
+    return False
+
+
+@kernel
+def _window_due(E, cfg, io, cnt, t_event):
+    """Whether Engine.on_window(t_event) would act (see the module docstring)."""
+    U, d, var_w, conv_var = E[19], E[20], E[27], E[28]
+    f = cnt[0]
+    f = (f | _ST1_STALE) if t_event - io[6] > cfg[7] else (f & ~_ST1_STALE)
+    f = (f | _ST2_STALE) if t_event - io[7] > cfg[7] else (f & ~_ST2_STALE)
+    if variances_within(U, d, var_w, conv_var, 3):
+        f &= ~_NOT_CONVERGED
+    else:
+        f |= _NOT_CONVERGED
+    return f != cnt[0] or t_event >= io[3] or io[0] >= io[4]
+
+
+@kernel
+def _fold(E):
+    """Engine._apply_correction: fold dx into q and xp, rebuild the geometry (> 0: singular)."""
+    return fold_correction(E[21], E[2], E[1], E[4], E[5], E[6], E[3], E[7], E[8], E[9])
+
+
+@kernel
+def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt):
+    """Propagate samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status
+    (m,) int bits, bridged (m,) bool, var_extra (m,) [rad²]), closing windows on the way, as
+    Engine.gyro with an attitude does. Returns (reason R_*, index of the next sample)."""
+    (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
+     acc_f, th_acc, omega) = E[:19]
+    window, arw, gap_s = int(cfg[0]), cfg[1], cfg[5]
+    while k < upto:
+        if dt[k] > gap_s:
+            return R_SLOW, k
+        stop = k + 1
+        while stop < upto and not dt[stop] > gap_s:
+            stop += 1
+        k_next, pflags = propagate_window(
+            dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k, excluded,
+            xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+            th_acc, window, arw, omega)
+        cnt[1] += k_next - k
+        if pflags & PROP_UNDETERMINED:
+            cnt[2] += 1
+        cnt[3] = 1 if pflags & PROP_MASKED else 0
+        io[0] = t[k_next - 1]
+        k = k_next
+        if acc_i[0] >= window:
+            if _close(E, cfg, io, cnt):
+                return R_CLOSE_TAIL, k
+            if _fold(E) > 0:
+                return R_NUMERIC_FOLD, k
+            if _window_due(E, cfg, io, cnt, io[0]):
+                return R_ON_WINDOW, k
+    return R_DONE, k
+
+
+@kernel
+def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt):
+    """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
+    q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
+    the residual and rows, the gated update, the fold and the window test, as Engine.tracker does
+    once the attitude is initialized. An invalid sample returns R_TRACKER_PY at once (Python
+    counts it); otherwise io[6] or io[7] (last valid epoch) ← t_epoch first. Returns R_*."""
+    (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
+     acc_f, th_acc, omega, U, d, dx, q_params, param_idx, q_dt, struct_w, a_w, var_w, conv_var,
+     kappa_last, Hbuf, r3, H_att, H_phi, Fbuf, Sbuf, innov, sig, f_w, v_w, k_w, st_sigma,
+     gyro_mask, Hwbuf, zwbuf, Lbuf) = E
+    cnt[6], cnt[7] = 0, 0
+    if not valid or n_stars < cfg[17]:
+        return R_TRACKER_PY
+    io[5 + j] = t_epoch
+    if acc_i[0] > 0 and _close(E, cfg, io, cnt):
+        return R_CLOSE_TAIL
+    phi_col, lat_col, phi_p, lat_p = int(cfg[13]), int(cfg[14]), int(cfg[15]), int(cfg[16])
+    H = Hbuf[:3]
+    rate2 = tracker_rows(q_meas, q, omega, t_epoch - xp[lat_p] - io[0], R_nom,
+                         xp[phi_p:phi_p + 3], use_phi, phi_col, lat_col, r3, H_att, H_phi, H)
+    scale = math.sqrt(cfg[10] / max(n_stars, 1))
+    rdiag = np.empty(3)
+    for r in range(3):
+        s = st_sigma[r] * scale
+        rdiag[r] = s * s
+    sig_t = io[2]
+    gate, edit = cfg[11], cfg[12] != 0.0
+    if sig_t * sig_t * rate2 / rdiag.min() > _TIMING_RATIO:  # Engine._tracker_update's timing term
+        Rm = np.empty((3, 3))
+        timing_noise(R_nom, omega, rdiag, sig_t, Rm)
+        Hw, zw, L = Hwbuf[:3], zwbuf[:3], Lbuf[:3, :3]
+        if decorrelate(H, r3, Rm, Hw, zw, L) != 0:
+            return R_TRACKER_SLOW  # nothing changed yet: Python takes the whole update
+        ones = np.ones(3)
+        if sig_t > cfg[8]:  # Schmidt consider on the gyro calibration
+            cnt[7] = 1
+            status, nis, edited = gated_update_consider(
+                U, d, dx, Hw, zw, ones, gate, edit, gyro_mask, Fbuf[:3], Sbuf[:3, :3], innov[:3],
+                sig[:3], f_w, v_w, k_w, a_w)
+        else:
+            status, nis, edited = gated_update(U, d, dx, Hw, zw, ones, gate, edit, Fbuf[:3],
+                                               Sbuf[:3, :3], innov[:3], sig[:3], f_w, v_w, k_w)
+        iw = innov[:3].copy()
+        unwhiten_diagnostics(L, iw, Sbuf[:3, :3], innov[:3], sig[:3])
+    else:
+        status, nis, edited = gated_update(U, d, dx, H, r3, rdiag, gate, edit, Fbuf[:3],
+                                           Sbuf[:3, :3], innov[:3], sig[:3], f_w, v_w, k_w)
+    cnt[4], cnt[5], cnt[6] = status, 1 if edited else 0, 1
+    io[9] = nis
+    if status != 0:
+        return R_VEC_STATUS
+    bit = _ST1_EDITED if j == 1 else _ST2_EDITED
+    cnt[0] = (cnt[0] & ~bit) | (bit if edited else 0)
+    if _fold(E) > 0:
+        return R_NUMERIC_FOLD
+    if _window_due(E, cfg, io, cnt, t_epoch):
+        return R_ON_WINDOW
+    return R_DONE
+
+
+@kernel
+def _v1(buf, lay, i):
+    return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
+
+
+@kernel
+def _v2(buf, lay, i):
+    o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
+    return buf[o:o + r * c].reshape((r, c))
+
+
+@kernel
+def unpack(fb, ib, bb, lay):
+    """The array tuple E from the engine's packed buffers (EngineState._pack: float64 fb, int64
+    ib, bool bb, layout lay (k, 4) of offset, rows, columns, buffer)."""
+    return (_v1(bb, lay, 0), _v1(fb, lay, 1), _v1(fb, lay, 2), _v2(fb, lay, 3), _v2(fb, lay, 4),
+            _v2(fb, lay, 5), _v2(fb, lay, 6), _v2(fb, lay, 7), _v2(fb, lay, 8), _v2(fb, lay, 9),
+            _v2(fb, lay, 10), _v2(fb, lay, 11), _v2(fb, lay, 12), _v2(fb, lay, 13),
+            _v2(fb, lay, 14), _v1(ib, lay, 15), _v1(fb, lay, 16), _v1(fb, lay, 17),
+            _v1(fb, lay, 18), _v2(fb, lay, 19), _v1(fb, lay, 20), _v1(fb, lay, 21),
+            _v1(fb, lay, 22), _v1(ib, lay, 23), _v1(fb, lay, 24), _v2(fb, lay, 25),
+            _v1(fb, lay, 26), _v1(fb, lay, 27), _v1(fb, lay, 28), _v1(fb, lay, 29),
+            _v2(fb, lay, 30), _v1(fb, lay, 31), _v2(fb, lay, 32), _v2(fb, lay, 33),
+            _v2(fb, lay, 34), _v2(fb, lay, 35), _v1(fb, lay, 36), _v1(fb, lay, 37),
+            _v1(fb, lay, 38), _v1(fb, lay, 39), _v1(fb, lay, 40), _v1(fb, lay, 41),
+            _v1(bb, lay, 42), _v2(fb, lay, 43), _v1(fb, lay, 44), _v2(fb, lay, 45))
+
+
+@kernel
+def fast_tracker(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, fb, ib, bb, lay, cfg, io,
+                 cnt):
+    """:func:`_tracker_step` on the engine's packed arrays (a tracker sample on its own)."""
+    return _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi,
+                         unpack(fb, ib, bb, lay), cfg, io, cnt)
+
+
+@kernel
+def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
+                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i):
+    """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
+    (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
+    epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
+    to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). The update results of every tracker event
+    go to evo_f (E, 7) (NIS, innovation (3,), σ (3,)) and evo_i (E, 4) (status, edited, updated,
+    consider)
+    for Python's bookkeeping. Returns (reason, next sample, event, stage): R_DONE with event ==
+    n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
+    before z when e == n_ev), 1 for a reason of tracker event e itself."""
+    E = unpack(fb, ib, bb, lay)
+    innov, sig = E[36], E[37]
+    while e < n_ev:
+        epoch = ev_f[e, 0]
+        up = k
+        while up < z and t[up] <= epoch:
+            up += 1
+        reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, up, E, cfg, io, cnt)
+        if reason != R_DONE:
+            return reason, k, e, 0
+        j = ev_i[e, 0]
+        reason = _tracker_step(j, epoch, ev_f[e, 1:5], ev_i[e, 1], ev_i[e, 2] != 0,
+                               R1 if j == 1 else R2, j == 2, E, cfg, io, cnt)
+        evo_i[e, 0], evo_i[e, 1], evo_i[e, 2], evo_i[e, 3] = cnt[4], cnt[5], cnt[6], cnt[7]
+        evo_f[e, 0] = io[9]
+        for r in range(3):
+            evo_f[e, 1 + r] = innov[r]
+            evo_f[e, 4 + r] = sig[r]
+        if reason != R_DONE:
+            return reason, k, e, 1
+        e += 1
+    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt)
+    return reason, k, e, 0

@@ -1,0 +1,75 @@
+"""Reconstructed gyro samples waiting for their release to the engine (a FIFO in flat arrays).
+
+The stream processor holds samples back until the watermark passes them
+(:mod:`radical_rt.stream`); the engine then takes a range of them in one call
+(:meth:`radical_rt.filter.Engine.release`). Keeping the samples in one set of contiguous arrays,
+instead of a list of the clock's batches, makes a release an index range (no slicing or
+concatenation per event), and the not-yet-released samples one view for the low-latency
+prediction of sample-triggered telemetry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .clock import GyroBatch
+
+
+class GyroQueue:
+    """Samples ``head``..``end``−1 of the arrays t, dt [s], dtheta (·, n) [rad], status (int bits),
+    bridged (bool), var_extra [rad²] are pending, in time order."""
+
+    def __init__(self, n_gyro: int, capacity: int = 256) -> None:
+        self.n_gyro = n_gyro
+        self._alloc(capacity)
+        self.head = self.end = 0
+
+    def _alloc(self, cap: int) -> None:
+        self.t, self.dt, self.var_extra = np.empty(cap), np.empty(cap), np.empty(cap)
+        self.dtheta = np.empty((cap, self.n_gyro))
+        self.status = np.empty(cap, np.int64)
+        self.bridged = np.empty(cap, np.bool_)
+
+    def __len__(self) -> int:
+        return self.end - self.head
+
+    def clear(self) -> None:
+        self.head = self.end = 0
+
+    def push(self, b: GyroBatch) -> None:
+        """Append a batch of samples (later than the pending ones)."""
+        m = len(b.t)
+        if self.end + m > len(self.t):
+            self._make_room(m)
+        s = slice(self.end, self.end + m)
+        self.t[s], self.dt[s], self.dtheta[s] = b.t, b.dt, b.dtheta
+        self.status[s], self.bridged[s], self.var_extra[s] = b.status, b.bridged, b.var_extra
+        self.end += m
+
+    def _make_room(self, m: int) -> None:
+        """Move the pending samples to the front; double the capacity until m more fit."""
+        keep, cap = len(self), len(self.t)
+        while keep + m > cap:
+            cap *= 2
+        src = slice(self.head, self.end)
+        old = self.arrays()
+        if cap != len(self.t):
+            self._alloc(cap)
+        for dst, a in zip(self.arrays(), old, strict=True):
+            dst[:keep] = a[src]  # copies (overlapping moves are safe with numpy assignment)
+        self.head, self.end = 0, keep
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The whole arrays (t, dt, dtheta, status, bridged, var_extra): index with head..end."""
+        return self.t, self.dt, self.dtheta, self.status, self.bridged, self.var_extra
+
+    def view(self, a: int, b: int) -> tuple[np.ndarray, ...]:
+        """Views of samples a..b−1 (absolute indices), in the order of :meth:`arrays`."""
+        return (self.t[a:b], self.dt[a:b], self.dtheta[a:b], self.status[a:b], self.bridged[a:b],
+                self.var_extra[a:b])
+
+    def upto(self, t_max: float) -> int:
+        """End index of the pending samples with t ≤ t_max."""
+        if self.end == self.head or self.t[self.end - 1] <= t_max:
+            return self.end
+        return self.head + int(np.searchsorted(self.t[self.head:self.end], t_max, side="right"))
