@@ -30,3 +30,10 @@ OK = 0
 ERR_NOT_POSITIVE = 1  # a variance or pivot became non-positive or non-finite
 ERR_SHAPE = 2  # inconsistent array sizes
 ERR_NONFINITE = 3  # a NaN or Inf in an input
+
+
+def inline_kernel(fn):
+    """:func:`kernel` inlined into its callers at Numba IR level (``inline='always'``): for the
+    helpers of :mod:`radical_rt.fastpath` that take the tuple of engine arrays, whose reference
+    counting per call would otherwise cost more than their arithmetic."""
+    return njit(inline="always", **_POLICY)(fn)

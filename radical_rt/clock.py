@@ -43,6 +43,7 @@ from radical_rt.clock_kernels import (
     period,
     tag_sigma,
 )
+from radical_rt.clock_timing import pending_read
 
 #: counters exposed by :attr:`SiruClock.counters` (the first seven are the interface's)
 COUNTER_NAMES = ("samples", "repeated", "missing", "bridged", "anomalies", "wraps", "resets",
@@ -200,6 +201,28 @@ class SiruClock:
         """Process one ``siru`` message's columns (k reads, in read order)."""
         return self._run(t_bus, tt, dtheta, status, final=False)
 
+    def push_into(self, queue, t_bus, tt, dtheta, status) -> int:
+        """:meth:`push` with the released samples appended straight from the kernel's output
+        buffers to ``queue`` (a :class:`radical_rt.gyro_queue.GyroQueue`; no intermediate
+        batch). t_bus (k,) float64, tt (k,) int64, dtheta (k, n) float64, status (k,) int64, all
+        C-contiguous (as :func:`radical_rt.packets.decode_siru` returns them). Returns the number of
+        samples appended; ``last_tt`` holds their tags."""
+        k = t_bus.shape[0]
+        need = min(k, _CHUNK) + 2 + int(self.config.max_bridge)
+        if self._of.shape[0] < need:
+            self._of = np.empty((need + need // 4, O_DTH + self.n_gyro))
+            self._oi = np.empty((need + need // 4, 3), np.int64)
+        total, j, tags = 0, 0, []
+        while j < k:
+            stop = min(j + _CHUNK, k)
+            m, j = clock_run(self._I, self._F, t_bus[:stop], tt[:stop], dtheta[:stop],
+                             status[:stop], j, False, self._of, self._oi)
+            queue.push_block(self._of, self._oi, m)
+            tags.append(self._oi[:m, O_TT].copy())
+            total += m
+        self.last_tt = tags[0] if len(tags) == 1 else np.concatenate(tags)
+        return total
+
     def flush(self) -> GyroBatch:
         """End of stream: release the read held back for look-ahead."""
         return self._run([], [], np.zeros((0, self.n_gyro)), [], final=True)
@@ -249,6 +272,13 @@ class SiruClock:
         self.last_tt = oi[:, O_TT]
         return GyroBatch(of[:, O_T], of[:, O_DT], of[:, O_DTH:], oi[:, O_ST],
                          oi[:, O_BR].astype(bool), of[:, O_VAR])
+
+    def pending_view(self) -> tuple[bool, int, float, np.ndarray]:
+        """(has, status, period_s, dtheta view): :meth:`pending` and :meth:`period_s` in one call,
+        the increments as a view of the clock state (valid until the next push; read only)."""
+        has, status, per = pending_read(self._I, self._F)
+        dp = L.DA + self.n_gyro
+        return bool(has), int(status), float(per), self._F[dp:dp + self.n_gyro]
 
     def pending(self) -> tuple[np.ndarray, int] | None:
         """The read held back for look-ahead when it is probably the next sample (its tag differs

@@ -190,3 +190,11 @@ def _time_read(I, F, tau, k, mode):
     else:
         I[L.I_CONSEC_REJ] = 0
     F[L.F_E_LAST] = tau - line_time(I, F, k)
+
+
+@kernel
+def pending_read(I, F):
+    """(has, status, period): whether the read held back for look-ahead is probably the next
+    sample (SiruClock.pending), its status bits, and the estimated sample period [s]."""
+    has = I[L.I_HAVE_P] != 0 and not (I[L.I_HAVE_A] != 0 and I[L.I_TT_P] == I[L.I_TT_A])
+    return has, I[L.I_ST_P], period(F)

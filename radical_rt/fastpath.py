@@ -16,8 +16,8 @@ reference path would do something only Python does:
 * ``R_TRACKER_SLOW``: the whitening of the tracker noise with the clock's timing term failed
   (Python redoes the update and handles the error);
 * ``R_VEC_STATUS`` / ``R_NUMERIC_FOLD``: a kernel error in the tracker update or the fold;
-* ``R_ON_WINDOW``: the window hook has work — the flags would change (stale trackers,
-  convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
+* ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
+  trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
   or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
   ending). Python then runs :meth:`Engine.on_window` exactly as the reference path does.
 
@@ -32,7 +32,8 @@ gate_st_nis, edit_enabled, φ2 state column, τ state column, φ2 index in xp, �
 st_min_stars.
 ``io`` (float64[10]): [0] engine time t [s] (in/out), [1] locked_since [s] (in/out), [2] σ_t of
 the time line [s], [3] wake_t, [4] wake_e [s], [5] epoch of the oldest queued parity sum (inf if
-none), [6], [7] last valid ST1, ST2 epoch [s] (−inf if none), [9] NIS of the tracker update (out).
+none), [6], [7] last valid ST1, ST2 epoch [s] (−inf if none), [8] the engine's mode (MODE_*;
+the window hook has work when update_mode would change it), [9] NIS of the tracker update (out).
 ``cnt`` (int64[8]): [0] flags (in/out), [1] samples propagated (+=), [2] undetermined windows
 (+=), [3] PROP_MASKED of the last propagate call (the caller sets −1), [4] kernel status (out), [5]
 1 if the tracker sample was edited (out), [6] 1 if a tracker update ran (out), [7] 1 if it
@@ -45,7 +46,7 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import inline_kernel, kernel
 from .flags import Flag
 from .model import fold_correction, tracker_rows
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
@@ -58,11 +59,12 @@ from .updates import gated_update, gated_update_consider, timing_noise, unwhiten
 
 _ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
 _ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
-_NOT_CONVERGED = int(Flag.NOT_CONVERGED)
+_NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[8]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
 
-@kernel
+@inline_kernel
 def _close(E, cfg, io, cnt):
     """Close the time-update window (as Engine._close_window). Returns True when Python must take
     the rest of the close (kernel error, parity sum complete or due); else runs the lock latch."""
@@ -86,10 +88,10 @@ def _close(E, cfg, io, cnt):
     return False
 
 
-@kernel
+@inline_kernel
 def _window_due(E, cfg, io, cnt, t_event):
     """Whether Engine.on_window(t_event) would act (see the module docstring)."""
-    U, d, var_w, conv_var = E[19], E[20], E[27], E[28]
+    excluded, U, d, var_w, conv_var = E[0], E[19], E[20], E[27], E[28]
     f = cnt[0]
     f = (f | _ST1_STALE) if t_event - io[6] > cfg[7] else (f & ~_ST1_STALE)
     f = (f | _ST2_STALE) if t_event - io[7] > cfg[7] else (f & ~_ST2_STALE)
@@ -97,16 +99,23 @@ def _window_due(E, cfg, io, cnt, t_event):
         f &= ~_NOT_CONVERGED
     else:
         f |= _NOT_CONVERGED
-    return f != cnt[0] or t_event >= io[3] or io[0] >= io[4]
+    if f & _NUMERIC:
+        mode = MODE_DEGRADED
+    else:
+        mode = MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED
+        for i in range(excluded.shape[0]):
+            if excluded[i]:
+                mode = MODE_DEGRADED
+    return f != cnt[0] or mode != io[8] or t_event >= io[3] or io[0] >= io[4]
 
 
-@kernel
+@inline_kernel
 def _fold(E):
     """Engine._apply_correction: fold dx into q and xp, rebuild the geometry (> 0: singular)."""
     return fold_correction(E[21], E[2], E[1], E[4], E[5], E[6], E[3], E[7], E[8], E[9])
 
 
-@kernel
+@inline_kernel
 def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt):
     """Propagate samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status
     (m,) int bits, bridged (m,) bool, var_extra (m,) [rad²]), closing windows on the way, as
@@ -140,7 +149,7 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt)
     return R_DONE, k
 
 
-@kernel
+@inline_kernel
 def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt):
     """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
     q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
@@ -201,18 +210,18 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     return R_DONE
 
 
-@kernel
+@inline_kernel
 def _v1(buf, lay, i):
     return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
 
 
-@kernel
+@inline_kernel
 def _v2(buf, lay, i):
     o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
     return buf[o:o + r * c].reshape((r, c))
 
 
-@kernel
+@inline_kernel
 def unpack(fb, ib, bb, lay):
     """The array tuple E from the engine's packed buffers (EngineState._pack: float64 fb, int64
     ib, bool bb, layout lay (k, 4) of offset, rows, columns, buffer)."""

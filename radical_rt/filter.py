@@ -46,6 +46,8 @@ from .updates import gated_update, gated_update_consider, timing_noise, unwhiten
 
 _ST_KIND = {1: "st1", 2: "st2"}
 _ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
+_MODE_CODE = {"converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
+              "degraded": fp.MODE_DEGRADED}  # io[8] of radical_rt.fastpath ("init": −1)
 
 
 def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -307,6 +309,7 @@ class Engine(EngineState):
         io[5] = self.parity_queue[0][0] if self.parity_queue else math.inf
         last = self.last_valid_st
         io[6], io[7] = last.get(1, -math.inf), last.get(2, -math.inf)
+        io[8] = _MODE_CODE.get(self.mode, -1.0)
         cnt[0], cnt[1], cnt[2], cnt[3] = self.flags, 0, 0, -1
 
     def _fast_end(self) -> None:
@@ -334,20 +337,12 @@ class Engine(EngineState):
     def _wake(self) -> tuple[float, float]:
         """(wake_t, wake_e) of radical_rt.fastpath: the event time and the engine time from which
         :meth:`on_window` has work although the flags stay the same (−inf: at once)."""
-        if self.mode != self._mode_for(self.flags):
-            return -math.inf, -math.inf
         wake_e = math.inf if self.fdi is None else self.fdi.wake_time()
         src = self.wake_source
         if src is None:
             return math.inf, wake_e
         wake_t, e = src()
         return wake_t, min(wake_e, e)
-
-    def _mode_for(self, flags: int) -> str:
-        """The mode update_mode gives with an initialized attitude and these flags."""
-        if flags & int(Flag.NUMERIC) or self.excluded.any():
-            return "degraded"
-        return "converging" if flags & int(Flag.NOT_CONVERGED) else "converged"
 
     # callable() → (wake_t, wake_e) of the listener (the stream's packets)
     wake_source: Callable[[], tuple[float, float]] | None = None

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._jit import kernel
 from .clock import GyroBatch
+from .clock_kernels import O_BR, O_DT, O_DTH, O_ST, O_T, O_VAR
 
 
 class GyroQueue:
@@ -46,6 +48,17 @@ class GyroQueue:
         self.status[s], self.bridged[s], self.var_extra[s] = b.status, b.bridged, b.var_extra
         self.end += m
 
+    def push_block(self, of: np.ndarray, oi: np.ndarray, m: int) -> None:
+        """Append rows 0..m−1 of the clock kernel's output blocks (float of, int oi; columns
+        O_* of :mod:`radical_rt.clock_layout`), as :meth:`push` of the batch they would make."""
+        if m == 0:
+            return
+        if self.end + m > len(self.t):
+            self._make_room(m)
+        _append_block(of, oi, m, self.end, self.t, self.dt, self.dtheta, self.status,
+                      self.bridged, self.var_extra)
+        self.end += m
+
     def _make_room(self, m: int) -> None:
         """Move the pending samples to the front; double the capacity until m more fit."""
         keep, cap = len(self), len(self.t)
@@ -73,3 +86,15 @@ class GyroQueue:
         if self.end == self.head or self.t[self.end - 1] <= t_max:
             return self.end
         return self.head + int(np.searchsorted(self.t[self.head:self.end], t_max, side="right"))
+
+
+@kernel
+def _append_block(of, oi, m, end, t, dt, dtheta, status, bridged, var_extra):
+    """Copy rows 0..m−1 of the clock's output blocks into the queue arrays from index end."""
+    n = dtheta.shape[1]
+    for r in range(m):
+        k = end + r
+        t[k], dt[k], var_extra[k] = of[r, O_T], of[r, O_DT], of[r, O_VAR]
+        for i in range(n):
+            dtheta[k, i] = of[r, O_DTH + i]
+        status[k], bridged[k] = oi[r, O_ST], oi[r, O_BR] != 0

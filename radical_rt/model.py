@@ -302,9 +302,15 @@ def contract_from_internal(xp, n):
     1 + λ = |a| = √((1+λ')² + du'² + dv'²), du = du'/(1+λ'), dv = dv'/(1+λ'), μ = μ'(1+λ).
     Returns (xp_contract (5n+3,), J (5n+3, 5n+3)).
     """
-    xp = np.asarray(xp, dtype=float)
-    out = xp.copy()
-    J = np.eye(xp.size)
+    xp = np.ascontiguousarray(xp, dtype=float)
+    out, J = xp.copy(), np.eye(xp.size)
+    _contract_from_internal(xp, int(n), out, J)
+    return out, J
+
+
+@kernel
+def _contract_from_internal(xp, n, out, J):
+    """The per-gyro part of :func:`contract_from_internal` into out (copy of xp) and J (= I)."""
     for i in range(n):
         il, im, iu, iv = n + i, 2 * n + i, 3 * n + i, 4 * n + i
         sl, mu, du, dv = 1.0 + xp[il], xp[im], xp[iu], xp[iv]
@@ -318,7 +324,6 @@ def contract_from_internal(xp, n):
         J[im, il], J[im, iu], J[im, iv] = mu * sl / na, mu * du / na, mu * dv / na
         J[iu, iu], J[iu, il] = 1.0 / sl, -du / (sl * sl)
         J[iv, iv], J[iv, il] = 1.0 / sl, -dv / (sl * sl)
-    return out, J
 
 
 def internal_from_contract(xp_c, n):

@@ -120,9 +120,10 @@ def decode_tracker(msg: dict):
     q = _array(_field(msg, "q"), "q", np.float64)
     if q.shape != (4,):
         raise InputError("bad_shape", f"q must have 4 elements, got {q.shape[0]}")
-    if not np.isfinite(q).all():
+    nn = float(q @ q)
+    if not math.isfinite(nn) and not np.isfinite(q).all():  # (the dot is finite if q is)
         raise InputError("nonfinite", "q contains NaN/Inf")
-    norm = math.sqrt(float(q @ q))
+    norm = math.sqrt(nn)
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise InputError("non_unit_quaternion", f"‖q‖ = {norm:.6g}, expected 1")
     n_stars = _field(msg, "n_stars")

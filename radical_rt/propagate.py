@@ -158,3 +158,23 @@ def predict_attitude(dtheta, dt, status, excluded, xp, A, Gp, q, omega):
         apply_body_rotation(q, th, work4, dq)
         used += 1
     return used
+
+
+@kernel
+def predict_now(dtheta, dt, status, a, b, pend_dth, pend_status, pend_dt, use_pend, excluded, xp,
+                A, Gp, q, omega):
+    """:func:`predict_attitude` through samples a..b−1 of the pending arrays (dtheta (m, n), dt,
+    status), then, if use_pend, through one more read (pend_dth (n,), pend_status, interval
+    pend_dt [s]): the attitude of sample-triggered telemetry in one call. q, omega in place."""
+    if b > a:
+        predict_attitude(dtheta[a:b], dt[a:b], status[a:b], excluded, xp, A, Gp, q, omega)
+    if use_pend:
+        n = pend_dth.shape[0]
+        d1 = np.empty((1, n))
+        for i in range(n):
+            d1[0, i] = pend_dth[i]
+        h1 = np.empty(1)
+        h1[0] = pend_dt
+        s1 = np.empty(1, np.int64)
+        s1[0] = pend_status
+        predict_attitude(d1, h1, s1, excluded, xp, A, Gp, q, omega)

@@ -27,10 +27,11 @@ from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .propagate import predict_attitude
+from .propagate import predict_now
 from .telemetry import PacketSpec, build, default_packets
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
+_CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
 
 
 class StreamProcessor:
@@ -104,10 +105,9 @@ class StreamProcessor:
         self._check_time("siru", float(t_bus[0]))
         self.last_t["siru"] = float(t_bus[-1])
         self.t_max = max(self.t_max, float(t_bus[-1]))
-        out = self.clock.push(t_bus, tt, dth, status)
-        if len(out.t):
-            self._gq.push(out)
-            self.t_now = float(out.t[-1])
+        gq = self._gq
+        if self.clock.push_into(gq, t_bus, tt, dth, status):
+            self.t_now = float(gq.t[gq.end - 1])
             self._new_sample = True
 
     def _feed_tracker(self, topic: str, msg: dict) -> None:
@@ -142,7 +142,8 @@ class StreamProcessor:
         arrays = gq.arrays()
         if z > a:
             if e.fdi is not None:
-                e.fdi.on_gyro(*(x[a:z] for x in arrays))
+                e.fdi.on_gyro(gq.t[a:z], gq.dt[a:z], gq.dtheta[a:z], gq.status[a:z],
+                              gq.bridged[a:z], gq.var_extra[a:z])
             self.released_t = max(self.released_t, float(gq.t[z - 1]))
         e.release(arrays, a, z, events)
 
@@ -171,9 +172,9 @@ class StreamProcessor:
     def flags(self) -> int:
         f = int(self.engine.flags)
         if self.clock.anomaly:
-            f |= Flag.CLOCK_ANOMALY
+            f |= _CLOCK_ANOMALY
         if self.engine.t - self.last_reject_t <= self.reject_hold_s or self.t_max == self.last_reject_t:
-            f |= Flag.INPUT_REJECTED
+            f |= _INPUT_REJECTED
         return f
 
     def flag_names(self) -> list[str]:
@@ -203,7 +204,7 @@ class StreamProcessor:
                     return -math.inf, -math.inf
                 wake_t = min(wake_t, spec.next_t)
         wake_e = math.inf
-        if self._last_flags & Flag.INPUT_REJECTED and self.t_max != self.last_reject_t:
+        if self._last_flags & _INPUT_REJECTED and self.t_max != self.last_reject_t:
             wake_e = self.last_reject_t + self.reject_hold_s - 1e-6  # the hold ends
         return wake_t, wake_e
 
@@ -239,19 +240,13 @@ class StreamProcessor:
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
             return _now_fields(e.t, q, omega)
-        gq = self._gq
-        if gq.end > gq.head:
-            a, b = gq.head, gq.end
-            predict_attitude(gq.dtheta[a:b], gq.dt[a:b], gq.status[a:b], e.excluded, e.xp, e.A,
-                             e.Gp, q, omega)
-        t = self.t_now
-        pend = self.clock.pending()  # the newest read, held back by the clock's look-ahead
-        if pend is not None and math.isfinite(t):
-            period = self.clock.period_s()
-            predict_attitude(pend[0][None, :], np.array([period]), np.array([pend[1]]),
-                             e.excluded, e.xp, e.A, e.Gp, q, omega)
-            t += period
-        return _now_fields(t, q, omega)
+        gq, t = self._gq, self.t_now
+        # the newest read, held back by the clock's look-ahead, taken as the next sample
+        has, status, period, dth = self.clock.pending_view()
+        use = has and math.isfinite(t)
+        predict_now(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, dth, status, period, use,
+                    e.excluded, e.xp, e.A, e.Gp, q, omega)
+        return _now_fields(t + period if use else t, q, omega)
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
