@@ -207,6 +207,7 @@ class SiruClock:
         batch). t_bus (k,) float64, tt (k,) int64, dtheta (k, n) float64, status (k,) int64, all
         C-contiguous (as :func:`radical_rt.packets.decode_siru` returns them). Returns the number of
         samples appended; ``last_tt`` holds their tags."""
+        self._sig_cache = None
         k = t_bus.shape[0]
         need = min(k, _CHUNK) + 2 + int(self.config.max_bridge)
         if self._of.shape[0] < need:
@@ -230,6 +231,7 @@ class SiruClock:
     def reset(self) -> None:
         """Stream discontinuity: forget the sequence and the phase, keep the frequency range and
         the counters. A held-back read is dropped (call :meth:`flush` first to keep it)."""
+        self._sig_cache = None
         ist, fst = self._I, self._F
         ist[L.I_HAVE_A] = 0
         ist[L.I_HAVE_P] = 0
@@ -242,6 +244,7 @@ class SiruClock:
         fst[L.F_Y_HI] = min(fst[L.F_Y_HI] + dy, fst[L.P_Y_HI])
 
     def _run(self, t_bus, tt, dtheta, status, final: bool) -> GyroBatch:
+        self._sig_cache = None
         t_bus = np.ascontiguousarray(t_bus, dtype=np.float64).reshape(-1)
         tt = np.ascontiguousarray(tt, dtype=np.int64).reshape(-1)
         k = t_bus.shape[0]
@@ -317,8 +320,14 @@ class SiruClock:
 
     @property
     def tag_error_sigma_s(self) -> float:
-        """1σ uncertainty of the reconstructed time of the latest sample [s]."""
-        return float(tag_sigma(self._I, self._F))
+        """1σ uncertainty of the reconstructed time of the latest sample [s] (cached until the
+        state changes: push, flush, reset, set_state)."""
+        sig = self._sig_cache
+        if sig is None:
+            sig = self._sig_cache = float(tag_sigma(self._I, self._F))
+        return sig
+
+    _sig_cache: float | None = None
 
     def freq_offset_ppm(self) -> float:
         """Estimated SIRU sample-period offset ε (T_siru = T (1 + ε)) [ppm]."""
@@ -360,6 +369,7 @@ class SiruClock:
 
     def set_state(self, state: dict) -> None:
         """Restore a :meth:`get_state` checkpoint (configuration included)."""
+        self._sig_cache = None
         if state.get("schema") != STATE_SCHEMA:
             raise ValueError(f"unknown clock state schema {state.get('schema')!r}")
         config = ClockConfig(**state["config"])

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from . import ud
+from ._jit import kernel
 from .conventions import DEG_PER_HR, SIRU_PERIOD_S
 from .flags import GYRO_FAILED, Flag
 from .model import apply_body_rotation, parity_from_stats, refresh_axes, tracker_residual
@@ -186,6 +187,19 @@ class ParityDetector:
 
 
 # ----------------------------------------------------------------------------- buffers
+@kernel
+def _append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged):
+    """_SampleBuffer.append's copy: rows end.. of the float block (t, dt, var_extra, dθ), the
+    int block (status) and the bool block (bridged)."""
+    n = dth.shape[1]
+    for r in range(t.shape[0]):
+        k = end + r
+        f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
+        for c in range(n):
+            f[k, 3 + c] = dth[r, c]
+        i_blk[k], b_blk[k] = status[r], bridged[r]
+
+
 class _SampleBuffer:
     """Recent gyro samples as the engine received them, time order, copied into growing blocks
     (one float block t, dt, var_extra, dθ; one int block status; one bool block bridged) with a
@@ -214,10 +228,7 @@ class _SampleBuffer:
             return
         if self._f.shape[1] != self._COLS + dth.shape[1] or self.end + m > len(self._i):
             self._make_room(m, dth.shape[1])
-        r = slice(self.end, self.end + m)
-        f = self._f
-        f[r, 0], f[r, 1], f[r, 2], f[r, self._COLS:] = t, dt, var_extra, dth
-        self._i[r], self._b[r] = status, bridged
+        _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged)
         self.end += m
 
     def _make_room(self, m: int, n: int) -> None:

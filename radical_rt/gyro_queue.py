@@ -85,7 +85,7 @@ class GyroQueue:
         """End index of the pending samples with t ≤ t_max."""
         if self.end == self.head or self.t[self.end - 1] <= t_max:
             return self.end
-        return self.head + int(np.searchsorted(self.t[self.head:self.end], t_max, side="right"))
+        return self.head + int(self.t[self.head:self.end].searchsorted(t_max, side="right"))
 
 
 @kernel
