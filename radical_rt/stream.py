@@ -85,7 +85,8 @@ class StreamProcessor:
                 self._feed_tracker(topic, msg)
         except InputError as exc:
             self._reject(topic, exc)
-        self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s)
+        self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
+                      defer=topic != "siru")
         if self._new_sample:
             self._new_sample = False
             self._sample_outputs()
@@ -126,9 +127,15 @@ class StreamProcessor:
         self.last_reject = f"{topic}: {exc}"
 
     # ---------------------------------------------------------------- release to the engine
-    def _release(self, watermark: float) -> None:
+    def _release(self, watermark: float, defer: bool = False) -> None:
         """Give the engine every tracker sample with epoch ≤ watermark and the gyro samples up to
-        the watermark, in epoch order (one :meth:`Engine.release`)."""
+        the watermark, in epoch order (one :meth:`Engine.release`).
+
+        defer: when no tracker sample is due and the gyro samples cannot complete a time-update
+        window, leave them in the queue for the next release (they count as released for the
+        late-tracker test). Nothing observable happens in such a release — no window closes, so
+        no output — and the next release processes the same events in the same order; the
+        stream defers on tracker and temperature messages, never before sample outputs."""
         events = []
         while self._trk and self._trk[0][0] <= watermark:
             epoch, j, _seq, q, n_stars, valid = heapq.heappop(self._trk)
@@ -137,6 +144,9 @@ class StreamProcessor:
         gq, e = self._gq, self.engine
         a, z = gq.head, gq.upto(watermark)
         if z == a and not events:
+            return
+        if defer and not events and e.acc_i[0] + (z - a) < e.si.prop_window:
+            self.released_t = max(self.released_t, float(gq.t[z - 1]))
             return
         gq.head = z  # taken before the engine runs
         arrays = gq.arrays()
