@@ -115,14 +115,34 @@ def _siru_column_check(t, tt, dth, status, tt_wrap):
 
 
 def decode_tracker(msg: dict):
-    """`st1`/`st2` sample → (t_bus s, q (4,) q_st_from_inertial, n_stars int, valid bool)."""
+    """`st1`/`st2` sample → (t_bus s, q (4,) q_st_from_inertial, n_stars int, valid bool).
+
+    q is normalized (‖q‖ within QUAT_NORM_TOL of 1 required). The common well-formed message
+    takes a short path in plain Python; anything else goes through the checks that name the
+    problem (:func:`_decode_tracker_checked`)."""
+    t, q, n_stars, valid = (msg.get("t_bus"), msg.get("q"), msg.get("n_stars"), msg.get("valid"))
+    if (type(t) is float and type(q) is list and len(q) == 4 and type(n_stars) is int
+            and type(valid) is bool and n_stars >= 0 and math.isfinite(t)):
+        q0, q1, q2, q3 = q
+        if type(q0) is float and type(q1) is float and type(q2) is float and type(q3) is float:
+            nn = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+            if math.isfinite(nn) and abs(math.sqrt(nn) - 1.0) <= QUAT_NORM_TOL:
+                norm = math.sqrt(nn)
+                return t, np.array((q0 / norm, q1 / norm, q2 / norm, q3 / norm)), n_stars, valid
+    return _decode_tracker_checked(msg)
+
+
+def _decode_tracker_checked(msg: dict):
+    """:func:`decode_tracker` with every check and its diagnostic (InputError)."""
     t = _float(msg, "t_bus")
     q = _array(_field(msg, "q"), "q", np.float64)
     if q.shape != (4,):
         raise InputError("bad_shape", f"q must have 4 elements, got {q.shape[0]}")
-    nn = float(q @ q)
-    if not math.isfinite(nn) and not np.isfinite(q).all():  # (the dot is finite if q is)
+    if not np.isfinite(q).all():
         raise InputError("nonfinite", "q contains NaN/Inf")
+    nn = 0.0
+    for x in q.tolist():  # the sum of the short path, in the same order
+        nn += x * x
     norm = math.sqrt(nn)
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise InputError("non_unit_quaternion", f"‖q‖ = {norm:.6g}, expected 1")
@@ -132,7 +152,7 @@ def decode_tracker(msg: dict):
     valid = _field(msg, "valid")
     if not isinstance(valid, bool):
         raise InputError("bad_type", f"valid must be true/false, got {valid!r}")
-    return t, q / norm, int(n_stars), valid
+    return t, np.array([x / norm for x in q.tolist()]), int(n_stars), valid
 
 
 def decode_temp(msg: dict) -> tuple[float, dict[str, float]]:

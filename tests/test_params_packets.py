@@ -94,6 +94,19 @@ def test_tracker_decoding():
     assert e.value.reason == "not_a_map"
 
 
+def test_tracker_short_path_equals_checked_path():
+    """Well-formed float messages take decode_tracker's short path; its result is the checked
+    path's, bit for bit (same normalization sum and divisions)."""
+    from radical_rt.packets import _decode_tracker_checked
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        q = rng.normal(size=4)
+        q = (q / np.linalg.norm(q) * (1.0 + rng.normal() * 1e-7)).tolist()
+        msg = {"v": 1, "t_bus": float(rng.uniform(0, 1e4)), "q": q, "n_stars": 7, "valid": True}
+        a, b = decode_tracker(msg), _decode_tracker_checked(msg)
+        assert a[0] == b[0] and a[2:] == b[2:] and np.array_equal(a[1], b[1])
+
+
 def test_packet_configuration(tmp_path):
     specs = parse_packets({"small": {"fields": ["seq", "t", "flags"], "period_s": 0.5}})
     assert specs["small"].fields == ["seq", "t", "flags"] and specs["small"].period_s == 0.5
