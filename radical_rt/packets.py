@@ -62,6 +62,9 @@ def _float(msg: dict, name: str) -> float:
 def _array(value: Any, name: str, dtype, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=dtype)
+    except OverflowError:
+        raise InputError("bad_value", f"{name} holds a value outside the {np.dtype(dtype).name} "
+                                      "range") from None
     except (TypeError, ValueError):
         raise InputError("bad_shape", f"{name} is not a rectangular numeric array") from None
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:

@@ -94,6 +94,14 @@ def test_tracker_decoding():
     assert e.value.reason == "not_a_map"
 
 
+def test_siru_tag_beyond_int64_is_a_clear_rejection():
+    msg = {"v": 1, "t_bus": [0.0, 0.01], "tt": [2**64, 1], "dtheta": [[0.0] * 4] * 2,
+           "status": [0, 0]}
+    with pytest.raises(InputError) as e:  # numpy raises OverflowError: rejected, not a crash
+        decode_siru(msg)
+    assert e.value.reason == "bad_value"
+
+
 def test_tracker_short_path_equals_checked_path():
     """Well-formed float messages take decode_tracker's short path; its result is the checked
     path's, bit for bit (same normalization sum and divisions)."""
