@@ -239,14 +239,6 @@ def unpack(fb, ib, bb, lay):
 
 
 @kernel
-def fast_tracker(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, fb, ib, bb, lay, cfg, io,
-                 cnt):
-    """:func:`_tracker_step` on the engine's packed arrays (a tracker sample on its own)."""
-    return _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi,
-                         unpack(fb, ib, bb, lay), cfg, io, cnt)
-
-
-@kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1

@@ -233,23 +233,21 @@ class Engine(EngineState):
                 self._tracker_bookkeeping(events[i], evo_f[i], evo_i[i])
             e = e_stop
             if stage == 1:
-                self._tracker_done(reason, *events[e])
+                self._tracker_done(reason, events[e], evo_f[e], evo_i[e])
                 e += 1
                 continue
             if reason == fp.R_DONE:
                 continue
+            # the reference path to the next event (or to z); the kernel then takes the event
             seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], events[e][1], side="right"))
-            if reason == fp.R_SLOW:  # a gap at sample k: the reference path to the event
+            if reason == fp.R_SLOW:  # a gap at sample k
                 self._gyro_body(*_span(arrays, k, seg), 0)
+                k = seg
             else:
                 self._window_done(reason)
-                if self.att_valid or k >= seg:
-                    continue
-                self._gyro_resume(*_span(arrays, k, seg))
-            k = seg
-            if e < n_ev:
-                self.tracker(*events[e])
-                e += 1
+                if not self.att_valid and k < seg:
+                    self._gyro_resume(*_span(arrays, k, seg))
+                    k = seg
 
     def _release_ref(self, arrays, a: int, z: int, events) -> None:
         """The reference path of :meth:`release` (FDI hook already called by the stream)."""
@@ -276,15 +274,19 @@ class Engine(EngineState):
     _ev_bufs: tuple[np.ndarray, ...] | None = None
 
     def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
-        """The reference path's bookkeeping of a tracker event the fast path completed (R_DONE):
-        last valid epoch, FDI hook, update diagnostics and counters."""
+        """The reference path's bookkeeping of a valid tracker event the fast path took: last
+        valid epoch, FDI hook and, if its update ran (out_i[2]), status check, diagnostics and
+        counters. out_f, out_i: the event's rows of fast_release's evo_f, evo_i. Returns used."""
         j, t_epoch, q_meas, n_stars, _valid = ev
         self.last_valid_st[j] = t_epoch
         if self.fdi is not None:
             self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
+        if not out_i[2]:
+            return False
         kind = _ST_KIND[j]
         if out_i[3]:
             self.counters[kind + "_consider"] += 1
+        self._check(int(out_i[0]))
         return self._update_done(kind, out_f[1:4].copy(), out_f[4:7].copy(), float(out_f[0]),
                                  bool(out_i[1]))
 
@@ -495,12 +497,7 @@ class Engine(EngineState):
             status, nis, edited = gated_update_consider(
                 self.U, self.d, self.dx, H, z, rdiag, gate, self.si.edit_enabled, consider, F, S,
                 innov, sig, self.ws.f, self.ws.v, self.ws.k, self.ws.a)
-        return self._vector_done(kind, status, nis, edited, H.shape[0])
-
-    def _vector_done(self, kind: str, status: int, nis: float, edited, m: int) -> bool:
-        """Bookkeeping after a gated update of m rows (status check, diagnostics, counters)."""
         self._check(status)
-        _F, _S, innov, sig = self._update_views(m)
         return self._update_done(kind, innov.copy(), sig.copy(), float(nis), bool(edited))
 
     def _update_done(self, kind: str, innov, sig, nis: float, edited: bool) -> bool:
@@ -575,20 +572,8 @@ class Engine(EngineState):
 
     # ---------------------------------------------------------------- tracker events
     def tracker(self, j: int, t_epoch: float, q_meas, n_stars: int, valid: bool) -> bool:
-        """Star tracker j (1 or 2) sample at epoch t_epoch (gyro time line). Returns True if used."""
-        if not (self.fast and self.att_valid):
-            return self._tracker_ref(j, t_epoch, q_meas, n_stars, valid)
-        R_nom, use_phi = self._mounting(j)
-        q_meas = np.asarray(q_meas, float)
-        self._fast_begin()
-        reason = fp.fast_tracker(j, float(t_epoch), q_meas, int(n_stars), bool(valid), R_nom,
-                                 use_phi, self._fb, self._ib, self._bb, self._lay, self._fast_cfg,
-                                 self._fast_io, self._fast_cnt)
-        self._fast_end()
-        return self._tracker_done(reason, j, t_epoch, q_meas, n_stars, valid)
-
-    def _tracker_ref(self, j: int, t_epoch: float, q_meas, n_stars: int, valid: bool) -> bool:
-        """The reference path of :meth:`tracker`."""
+        """Star tracker j (1 or 2) sample at epoch t_epoch (gyro time line), reference path
+        (the stream's releases run :meth:`release`). Returns True if used."""
         if not valid or n_stars < self.si.st_min_stars:
             self.counters[f"st{j}_invalid"] += 1
             return False
@@ -603,27 +588,19 @@ class Engine(EngineState):
         self.on_window(t_epoch)
         return used
 
-    def _tracker_done(self, reason: int, j: int, t_epoch: float, q_meas, n_stars: int,
-                      valid: bool) -> bool:
-        """After :func:`radical_rt.fastpath.fast_tracker`: the bookkeeping of the reference path
-        (last valid epoch, FDI hook, update diagnostics) and the steps the kernel handed over."""
-        if reason == fp.R_TRACKER_PY:
-            return self._tracker_ref(j, t_epoch, q_meas, n_stars, valid)
-        self.last_valid_st[j] = t_epoch
-        if self.fdi is not None:
-            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
-        cnt = self._fast_cnt
-        used = False
-        if cnt[7]:
-            self.counters[_ST_KIND[j] + "_consider"] += 1
-        if cnt[6]:
-            used = self._vector_done(_ST_KIND[j], int(cnt[4]), float(self._fast_io[9]),
-                                     bool(cnt[5]), 3)
+    def _tracker_done(self, reason: int, ev, out_f, out_i) -> None:
+        """A tracker event at which :func:`radical_rt.fastpath.fast_release` handed over: the
+        bookkeeping of what the kernel did, then the reference steps from there."""
+        if reason == fp.R_TRACKER_PY:  # invalid sample: the reference path counts it
+            self.tracker(*ev)
+            return
+        used = self._tracker_bookkeeping(ev, out_f, out_i)
+        j, t_epoch, q_meas, n_stars, _valid = ev
         if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:
             if reason == fp.R_CLOSE_TAIL:
-                self._check(int(cnt[4]))
+                self._check(int(out_i[0]))
                 self._close_tail()
-            used = self._tracker_update(j, t_epoch, q_meas, n_stars)
+            self._tracker_update(j, t_epoch, q_meas, n_stars)
             self._apply_correction()
         elif reason == fp.R_VEC_STATUS:
             bit = _ST_EDITED_BIT[j]
@@ -631,9 +608,7 @@ class Engine(EngineState):
             self._apply_correction()
         elif reason == fp.R_NUMERIC_FOLD:
             self._numeric("sense-axis geometry singular")
-        if reason != fp.R_DONE:
-            self.on_window(t_epoch)
-        return used
+        self.on_window(t_epoch)
 
     def latency_residual(self) -> float:
         """Residual tracker latency estimate τ̂ [s] (true − configured)."""
