@@ -209,10 +209,7 @@ class SiruClock:
         samples appended; ``last_tt`` holds their tags."""
         self._sig_cache = None
         k = t_bus.shape[0]
-        need = min(k, _CHUNK) + 2 + int(self.config.max_bridge)
-        if self._of.shape[0] < need:
-            self._of = np.empty((need + need // 4, O_DTH + self.n_gyro))
-            self._oi = np.empty((need + need // 4, 3), np.int64)
+        self._out_room(k)
         total, j, tags = 0, 0, []
         while j < k:
             stop = min(j + _CHUNK, k)
@@ -223,6 +220,13 @@ class SiruClock:
             total += m
         self.last_tt = tags[0] if len(tags) == 1 else np.concatenate(tags)
         return total
+
+    def _out_room(self, k: int) -> None:
+        """Output buffers (reused between calls) large enough for one chunk of k reads."""
+        need = min(k, _CHUNK) + 2 + int(self.config.max_bridge)
+        if self._of.shape[0] < need:
+            self._of = np.empty((need + need // 4, O_DTH + self.n_gyro))
+            self._oi = np.empty((need + need // 4, 3), np.int64)
 
     def flush(self) -> GyroBatch:
         """End of stream: release the read held back for look-ahead."""
@@ -252,11 +256,7 @@ class SiruClock:
         st = np.ascontiguousarray(status, dtype=np.int64).reshape(-1)
         if tt.shape[0] != k or st.shape[0] != k:
             raise ValueError("t_bus, tt, dtheta and status must have the same length")
-        room = 1 + int(self.config.max_bridge)
-        need = min(k, _CHUNK) + 1 + room
-        if self._of.shape[0] < need:  # output buffers are reused between calls
-            self._of = np.empty((need + need // 4, O_DTH + self.n_gyro))
-            self._oi = np.empty((need + need // 4, 3), np.int64)
+        self._out_room(k)
         parts_f, parts_i = [], []
         j, end = 0, k + 1 if final else k
         while j < end:  # bounded chunks; the kernel stops early if its output could overflow
@@ -288,13 +288,8 @@ class SiruClock:
         from the last accepted one): ``(dtheta (n,) rad, status bits)``; None otherwise. For
         low-latency predictions only: whether it is a repeat, a miss or the next sample is known
         when the following read arrives."""
-        ist, fst = self._I, self._F
-        if not ist[L.I_HAVE_P]:
-            return None
-        if ist[L.I_HAVE_A] and ist[L.I_TT_P] == ist[L.I_TT_A]:
-            return None
-        dp = L.DA + self.n_gyro
-        return fst[dp:dp + self.n_gyro].copy(), int(ist[L.I_ST_P])
+        has, status, _period, dtheta = self.pending_view()
+        return (dtheta.copy(), status) if has else None
 
     def period_s(self) -> float:
         """Current estimate of the SIRU sample period [s]."""

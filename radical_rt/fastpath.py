@@ -47,6 +47,7 @@ import math
 import numpy as np
 
 from ._jit import inline_kernel, kernel
+from .engine_state import EngineState
 from .flags import Flag
 from .model import fold_correction, tracker_rows
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
@@ -63,15 +64,25 @@ _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
 MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[8]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
+# positions in E of the arrays used by index below (EngineState._PACKED is the order)
+_IX = {(f"{owner}.{name}" if owner else name): i
+       for i, (owner, name) in enumerate(EngineState._PACKED)}
+(_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _ACC_I, _ACC_F,
+ _TH_ACC, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W, _VAR_W, _CONV_VAR,
+ _KAPPA_LAST, _INNOV, _SIG) = (_IX[k] for k in (
+    "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
+    "Q_aa", "acc_i", "acc_f", "th_acc", "U", "d", "dx", "q_params", "param_idx", "q_dt",
+    "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "innov", "sig"))
+
 
 @inline_kernel
 def _close(E, cfg, io, cnt):
     """Close the time-update window (as Engine._close_window). Returns True when Python must take
     the rest of the close (kernel error, parity sum complete or due); else runs the lock latch."""
-    (Minv, Phi_aa, Phi_ap, Q_aa, acc_i, acc_f, th_acc) = (E[7], E[10], E[11], E[12], E[15], E[16],
-                                                          E[17])
-    U, d, q_params, param_idx, q_dt, struct_w, a_w, kappa_last = (E[19], E[20], E[22], E[23],
-                                                                  E[24], E[25], E[26], E[29])
+    Minv, Phi_aa, Phi_ap, Q_aa = E[_MINV], E[_PHI_AA], E[_PHI_AP], E[_Q_AA]
+    acc_i, acc_f, th_acc, kappa_last = E[_ACC_I], E[_ACC_F], E[_TH_ACC], E[_KAPPA_LAST]
+    U, d, q_params, param_idx, q_dt = E[_U], E[_D], E[_Q_PARAMS], E[_PARAM_IDX], E[_Q_DT]
+    struct_w, a_w = E[_STRUCT_W], E[_A_W]
     noise_var = cfg[1] * acc_f[0] + cfg[2]
     status, kappa = close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv,
                                       int(cfg[9]), noise_var, cfg[3], q_params, param_idx, q_dt,
@@ -91,7 +102,7 @@ def _close(E, cfg, io, cnt):
 @inline_kernel
 def _window_due(E, cfg, io, cnt, t_event):
     """Whether Engine.on_window(t_event) would act (see the module docstring)."""
-    excluded, U, d, var_w, conv_var = E[0], E[19], E[20], E[27], E[28]
+    excluded, U, d, var_w, conv_var = E[_EXCLUDED], E[_U], E[_D], E[_VAR_W], E[_CONV_VAR]
     f = cnt[0]
     f = (f | _ST1_STALE) if t_event - io[6] > cfg[7] else (f & ~_ST1_STALE)
     f = (f | _ST2_STALE) if t_event - io[7] > cfg[7] else (f & ~_ST2_STALE)
@@ -112,7 +123,8 @@ def _window_due(E, cfg, io, cnt, t_event):
 @inline_kernel
 def _fold(E):
     """Engine._apply_correction: fold dx into q and xp, rebuild the geometry (> 0: singular)."""
-    return fold_correction(E[21], E[2], E[1], E[4], E[5], E[6], E[3], E[7], E[8], E[9])
+    return fold_correction(E[_DX], E[_Q], E[_XP], E[_W], E[_UAX], E[_VAX], E[_A], E[_MINV],
+                           E[_GP], E[_N])
 
 
 @inline_kernel
@@ -251,7 +263,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
     before z when e == n_ev), 1 for a reason of tracker event e itself."""
     E = unpack(fb, ib, bb, lay)
-    innov, sig = E[36], E[37]
+    innov, sig = E[_INNOV], E[_SIG]
     while e < n_ev:
         epoch = ev_f[e, 0]
         up = k
