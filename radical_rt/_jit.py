@@ -8,20 +8,72 @@ status codes instead).
 ``nogil=False``: the kernels run for microseconds, and releasing the GIL around each of them
 (about 20 calls per input message) handed it to any other Python thread that wanted it, and the
 filter loop then waited to get it back. With Zenoh callback threads in the node this ping-pong
-was measured to cost about a sixth of the node's capacity (perf/README.md). Numba's cache index
-does not see a change of these flags: after editing ``_POLICY``, delete the ``*.nbi``/``*.nbc``
-files under ``__pycache__`` (a clean checkout, as in CI, has none).
+was measured to cost about a sixth of the node's capacity (perf/README.md).
+
+**Stale caches.** Numba keys a cached kernel on its own source file only. A kernel that calls
+kernels of other modules (``fastpath.fast_release`` calls into ``propagate``, ``timeupdate``,
+``updates``, ``ud``, ``model``…) embeds their machine code, and after an edit of one of those
+modules it went on running the *old* callee from its cache while direct callers ran the new one.
+:func:`_drop_stale_cache` therefore treats the cached kernels of a source directory as one unit:
+a fingerprint of the Numba version, ``_POLICY`` and the contents of every kernel module (a
+``.py`` file that declares kernels) of ``radical_rt/`` and of the kernel's own directory is kept in ``__pycache__/kernels.stamp``;
+when it changes, every cached kernel there (``*.nbi``, ``*.nbc``) is deleted before the first
+kernel of that directory is declared, so everything is compiled afresh. (This covers Numba's
+default cache location next to the sources; with ``NUMBA_CACHE_DIR`` set, clear that directory
+after editing kernels.)
 """
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
+import numba
 from numba import njit
 
 _POLICY = dict(cache=True, fastmath=False, nogil=False, error_model="numpy")
+_PACKAGE = Path(__file__).resolve().parent
+_checked: set[Path] = set()
+
+
+def _fingerprint(directory: Path) -> str:
+    """Hash of the Numba version, the policy and the kernel modules of the package and of
+    ``directory``."""
+    h = hashlib.sha256(f"{numba.__version__}|{sorted(_POLICY.items())}".encode())
+    for d in sorted({_PACKAGE, directory}):
+        for src in sorted(d.glob("*.py")):
+            text = src.read_bytes()
+            if b"@kernel" in text or b"@inline_kernel" in text or b"njit(" in text:
+                h.update(src.name.encode())
+                h.update(text)
+    return h.hexdigest()
+
+
+def _drop_stale_cache(source_file: str) -> None:
+    """Delete the cached kernels next to ``source_file`` if any source they may embed changed
+    (see the module docstring). Never raises: without a writable cache it does nothing."""
+    directory = Path(source_file).resolve().parent
+    if directory in _checked:
+        return
+    _checked.add(directory)
+    cache = directory / "__pycache__"
+    stamp = cache / "kernels.stamp"
+    try:
+        fp = _fingerprint(directory)
+        if stamp.is_file() and stamp.read_text() == fp:
+            return
+        if cache.is_dir():
+            for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+                f.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(fp)
+    except OSError:
+        pass
 
 
 def kernel(fn):
     """Compile ``fn`` with the project's Numba policy."""
+    _drop_stale_cache(fn.__code__.co_filename)
     return njit(**_POLICY)(fn)
 
 
@@ -36,4 +88,5 @@ def inline_kernel(fn):
     """:func:`kernel` inlined into its callers at Numba IR level (``inline='always'``): for the
     helpers of :mod:`radical_rt.fastpath` that take the tuple of engine arrays, whose reference
     counting per call would otherwise cost more than their arithmetic."""
+    _drop_stale_cache(fn.__code__.co_filename)
     return njit(inline="always", **_POLICY)(fn)

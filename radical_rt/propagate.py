@@ -28,7 +28,7 @@ from .model import (
     increment_jacobian_lin,
     masked_pinv,
 )
-from .rotation import rotvec_to_dcm
+from .rotation import quat_to_dcm_into, rotvec_to_quat_into
 
 #: propagate_window return flags (bit set in the second return value)
 PROP_MASKED = 1  # some samples used fewer than all gyros
@@ -59,6 +59,8 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     dq = np.empty(4)
     Gm = np.empty((3, n))
     Mm = np.empty((3, 3))
+    R = np.empty((3, 3))  # R(θ̂) of the sample; the attitude-error transition is Rᵀ
+    T = np.empty((3, 3))
     active = np.empty(n, dtype=np.bool_)
     flags = 0
     k = i0
@@ -84,14 +86,25 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
         for i in range(n):
             gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
         increment_jacobian_lin(gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
-        Rt = rotvec_to_dcm(th).T
-        Phi_aa[:, :] = Rt @ Phi_aa
+        rotvec_to_quat_into(th, work4)
+        quat_to_dcm_into(work4, R)
+        # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
+        for j in range(3):
+            x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
+            for r in range(3):
+                Phi_aa[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
         for j in range(5 * n):
             x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
             for r in range(3):
-                Phi_ap[r, j] = Rt[r, 0] * x0 + Rt[r, 1] * x1 + Rt[r, 2] * x2 + F[r, j]
-        Q_aa[:, :] = Rt @ Q_aa @ Rt.T + (arw_var * h) * Mi
+                Phi_ap[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2 + F[r, j]
+        for j in range(3):
+            x0, x1, x2 = Q_aa[0, j], Q_aa[1, j], Q_aa[2, j]
+            for r in range(3):
+                T[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+        qn = arw_var * h
         for r in range(3):
+            for j in range(3):
+                Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
             Q_aa[r, r] += var_extra[k]
             omega[r] = th[r] / h
         apply_body_rotation(q, th, work4, dq)
