@@ -28,9 +28,31 @@ from .rotation import (
     quat_mul_into,
     quat_normalize_inplace,
     quat_to_dcm,
+    quat_to_dcm_into,
     rotvec_to_dcm,
     rotvec_to_quat_into,
 )
+
+
+@kernel
+def inv3(M, out):
+    """Inverse of a 3×3 matrix M into out (adjugate / determinant); returns det M. out is written
+    only when det M ≠ 0 (and is then finite when M is)."""
+    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
+    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
+    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
+    if det == 0.0 or not math.isfinite(det):
+        return det
+    r = 1.0 / det
+    out[0, 0], out[1, 0], out[2, 0] = c00 * r, c01 * r, c02 * r
+    out[0, 1] = (M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]) * r
+    out[1, 1] = (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) * r
+    out[2, 1] = (M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]) * r
+    out[0, 2] = (M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]) * r
+    out[1, 2] = (M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]) * r
+    out[2, 2] = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) * r
+    return det
 
 
 @kernel
@@ -48,9 +70,8 @@ def masked_pinv(Wt, active, Minv_out, Gp_out):
             for r in range(3):
                 for c in range(3):
                     M[r, c] += Wt[r, i] * Wt[c, i]
-    if na < 3 or abs(np.linalg.det(M)) < 1e-9:
+    if na < 3 or abs(inv3(M, Minv_out)) < 1e-9:
         return -1
-    Minv_out[:, :] = np.linalg.inv(M)
     for i in range(n):
         for r in range(3):
             s = 0.0
@@ -79,9 +100,13 @@ def left_jacobian(phi):
     K = np.zeros((3, 3))
     K[0, 1], K[0, 2], K[1, 0] = -phi[2], phi[1], phi[2]
     K[1, 2], K[2, 0], K[2, 1] = -phi[0], -phi[1], phi[0]
-    if a < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return np.eye(3) + (1.0 - math.cos(a)) / (a * a) * K + (a - math.sin(a)) / (a ** 3) * (K @ K)
+    c1, c2 = (0.5, 0.0) if a < 1e-8 else ((1.0 - math.cos(a)) / (a * a), (a - math.sin(a)) / (a ** 3))
+    J = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            kk = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
+            J[r, c] = (1.0 if r == c else 0.0) + c1 * K[r, c] + c2 * kk
+    return J
 
 
 @kernel
@@ -94,9 +119,27 @@ def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out
     r = −rotvec(R_meas R̂ᵀ) = R_nom R(φ̂)ᵀ (δθ + J_l(φ̂) δφ) to first order, so
     H_att = R_nom R(φ̂)ᵀ and H_phi = H_att J_l(φ̂) (zero if not use_phi).
     """
-    Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
-    Hm = R_st_from_body_nom @ Rphi.T
-    E = quat_to_dcm(q_meas) @ (Hm @ quat_to_dcm(q_body_est)).T
+    w = np.empty((5, 3, 3))  # R(φ̂), R_meas, R̂_body, Hm R̂_body, E
+    Rphi, Rm, Rb, G, E = w[0], w[1], w[2], w[3], w[4]
+    Hm = H_att
+    if use_phi:
+        q_phi = np.empty(4)
+        rotvec_to_quat_into(phi, q_phi)
+        quat_to_dcm_into(q_phi, Rphi)
+        for r in range(3):  # Hm = R_nom R(φ̂)ᵀ
+            for c in range(3):
+                Hm[r, c] = (R_st_from_body_nom[r, 0] * Rphi[c, 0] + R_st_from_body_nom[r, 1]
+                            * Rphi[c, 1] + R_st_from_body_nom[r, 2] * Rphi[c, 2])
+    else:
+        Hm[:, :] = R_st_from_body_nom
+    quat_to_dcm_into(q_meas, Rm)
+    quat_to_dcm_into(q_body_est, Rb)
+    for r in range(3):  # E = R_meas (Hm R̂_body)ᵀ
+        for c in range(3):
+            G[r, c] = Hm[r, 0] * Rb[0, c] + Hm[r, 1] * Rb[1, c] + Hm[r, 2] * Rb[2, c]
+    for r in range(3):
+        for c in range(3):
+            E[r, c] = Rm[r, 0] * G[c, 0] + Rm[r, 1] * G[c, 1] + Rm[r, 2] * G[c, 2]
     # rotvec of the error rotation E (exact for any angle below π).
     ax0 = 0.5 * (E[2, 1] - E[1, 2])
     ax1 = 0.5 * (E[0, 2] - E[2, 0])
@@ -105,9 +148,11 @@ def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out
     ang = math.atan2(sn, 0.5 * (E[0, 0] + E[1, 1] + E[2, 2] - 1.0))
     k = 1.0 if sn < 1e-12 else ang / sn
     r_out[0], r_out[1], r_out[2] = -k * ax0, -k * ax1, -k * ax2
-    H_att[:, :] = Hm
     if use_phi:
-        H_phi[:, :] = Hm @ left_jacobian(phi)
+        J = left_jacobian(phi)
+        for r in range(3):
+            for c in range(3):
+                H_phi[r, c] = Hm[r, 0] * J[0, c] + Hm[r, 1] * J[1, c] + Hm[r, 2] * J[2, c]
     else:
         H_phi[:, :] = 0.0
 
@@ -126,10 +171,11 @@ def tracker_rows(q_meas, q_body, omega, dt_extrap, R_st_from_body_nom, phi, use_
     """
     q_epoch = q_body.copy()
     if dt_extrap != 0.0:
-        th = np.empty(3)
+        w = np.empty(11)
+        th = w[:3]
         for r in range(3):
             th[r] = omega[r] * dt_extrap
-        apply_body_rotation(q_epoch, th, np.empty(4), np.empty(4))
+        apply_body_rotation(q_epoch, th, w[3:7], w[7:11])
     tracker_residual(q_meas, q_epoch, R_st_from_body_nom, phi, use_phi, r_out, H_att, H_phi)
     H[:, :] = 0.0
     for r in range(3):
@@ -169,8 +215,8 @@ def refresh_axes(xp, W, U_ax, V_ax, N_ref, A, Minv, Gp, N):
     """Rebuild the estimated scaled axes A and everything derived from them (internal params).
 
     xp (5n+3,) internal parameters; W, U_ax, V_ax (3, n) nominal triads; N_ref (n, n−3) previous
-    parity basis (for continuity). Writes A (3, n) with columns a_i = (1+λ'_i) w_i − du'_i v_i −
-    dv'_i u_i, Minv (3, 3) = (A Aᵀ)⁻¹, Gp (3, n) = Minv A, N (n, n−3) orthonormal basis of null(A).
+    parity basis (for continuity; it may be N itself). Writes A (3, n) with columns
+    a_i = (1+λ'_i) w_i − du'_i v_i − dv'_i u_i, Minv (3, 3) = (A Aᵀ)⁻¹, Gp (3, n) = Minv A, N (n, n−3) orthonormal basis of null(A).
     Returns 0, or 1 if A Aᵀ is singular.
     """
     n = W.shape[1]
@@ -180,13 +226,33 @@ def refresh_axes(xp, W, U_ax, V_ax, N_ref, A, Minv, Gp, N):
         dv = xp[4 * n + i]
         for r in range(3):
             A[r, i] = sl * W[r, i] - du * V_ax[r, i] - dv * U_ax[r, i]
-    M = A @ A.T
-    if abs(np.linalg.det(M)) < 1e-12:
+    M = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            s = 0.0
+            for i in range(n):
+                s += A[r, i] * A[c, i]
+            M[r, c] = s
+    Mi = np.empty((3, 3))
+    if abs(inv3(M, Mi)) < 1e-12:
         return 1
-    Minv[:, :] = np.linalg.inv(M)
-    Gp[:, :] = Minv @ A
-    proj = np.eye(n) - A.T @ Gp
-    B = proj @ N_ref
+    Minv[:, :] = Mi
+    for r in range(3):
+        for i in range(n):
+            Gp[r, i] = Minv[r, 0] * A[0, i] + Minv[r, 1] * A[1, i] + Minv[r, 2] * A[2, i]
+    # B = (I − AᵀGp) N_ref = N_ref − Aᵀ(Gp N_ref): the previous basis projected on null(A)
+    m = N_ref.shape[1]
+    y = np.empty((3, m))
+    for r in range(3):
+        for c in range(m):
+            s = 0.0
+            for k in range(n):
+                s += Gp[r, k] * N_ref[k, c]
+            y[r, c] = s
+    B = np.empty((n, m))
+    for k in range(n):
+        for c in range(m):
+            B[k, c] = N_ref[k, c] - (A[0, k] * y[0, c] + A[1, k] * y[1, c] + A[2, k] * y[2, c])
     for c in range(B.shape[1]):
         for k in range(c):
             s = 0.0
@@ -223,7 +289,7 @@ def fold_correction(dx, q, xp, W, U_ax, V_ax, A, Minv, Gp, N):
     for k in range(xp.shape[0]):
         xp[k] += dx[3 + k]
     dx[:] = 0.0
-    return refresh_axes(xp, W, U_ax, V_ax, N.copy(), A, Minv, Gp, N)
+    return refresh_axes(xp, W, U_ax, V_ax, N, A, Minv, Gp, N)
 
 
 @kernel
