@@ -40,7 +40,36 @@ def innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig):
                 acc += F[a, j] * d[j] * F[b, j]
             S[a, b] = acc
         sig[a] = np.sqrt(S[a, a]) if S[a, a] > 0 else 0.0
-    return innov @ np.linalg.solve(S, innov)
+    return spd_quadratic(S, innov)
+
+
+@kernel
+def spd_quadratic(S, v):
+    """vᵀS⁻¹v for S (m, m) symmetric positive definite and v (m,), by a Cholesky factorization
+    S = LLᵀ (lower triangle of S read): |L⁻¹v|². NaN if S is not positive definite (a gated
+    update then edits the measurement)."""
+    m = v.shape[0]
+    L = np.zeros((m, m))
+    y = np.empty(m)
+    out = 0.0
+    for j in range(m):
+        s = S[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return np.nan
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, m):
+            t = S[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / L[j, j]
+        t = v[j]
+        for k in range(j):
+            t -= L[j, k] * y[k]
+        y[j] = t / L[j, j]
+        out += y[j] * y[j]
+    return out
 
 
 @kernel

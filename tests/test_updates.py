@@ -54,3 +54,15 @@ def test_edit_leaves_state_untouched():
     assert acc == UPDATE_EDITED and nis > 30.0
     np.testing.assert_allclose(Pu, P, atol=1e-15)
     np.testing.assert_array_equal(dx, 0.0)
+
+
+def test_spd_quadratic_matches_solve_and_flags_indefinite():
+    from radical_rt.updates import spd_quadratic
+    rng = np.random.default_rng(11)
+    for m in (1, 2, 3, 5):
+        A = rng.normal(size=(m, m))
+        S = A @ A.T + 0.1 * np.eye(m)
+        v = rng.normal(size=m)
+        np.testing.assert_allclose(spd_quadratic(S, v), v @ np.linalg.solve(S, v), rtol=1e-12)
+    assert np.isnan(spd_quadratic(np.diag([1.0, -1.0, 2.0]), np.ones(3)))
+    assert np.isnan(spd_quadratic(np.array([[1.0, 2.0], [2.0, 1.0]]), np.ones(2)))
