@@ -312,6 +312,9 @@ class DenseEngine(Engine):
         xc, J = contract_from_internal(self.xp, self.n_gyro)
         return xc, J @ self.P[3:, 3:] @ J.T
 
+    def contract_sigma(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.contract_params()[1]), 0.0))
+
     def _numeric(self, why: str) -> None:
         self.flags |= Flag.NUMERIC
         self.counters["numeric_faults"] += 1

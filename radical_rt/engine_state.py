@@ -149,9 +149,16 @@ class EngineState:
         """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for
         compatibility): the σ come from the full parameter covariance mapped to the contract's
         parameters."""
-        _, Pc = self.contract_params()
-        sd = np.sqrt(np.maximum(np.diag(Pc), 0.0))
+        sd = self.contract_sigma()
         return {g: sd[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
+
+    def contract_sigma(self) -> np.ndarray:
+        """1σ (npar,) of the contract's parameters: sqrt(diag(J P_pp Jᵀ)) straight from the UD
+        factors, Σ_l d_l (J U_pp)²_il (P_pp = U_pp D_p U_ppᵀ because U is unit upper triangular;
+        neither P nor J P Jᵀ is formed). The dense reference overrides it."""
+        _, J = contract_from_internal(self.xp, self.n_gyro)
+        F = J @ self.U[3:, 3:]
+        return np.sqrt(np.maximum((F * F) @ self.d[3:], 0.0))
 
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, convergence test on the UD variances, and the mode."""

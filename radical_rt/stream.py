@@ -28,7 +28,7 @@ from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .propagate import predict_now
-from .telemetry import PacketSpec, build, default_packets
+from .telemetry import CATALOGUE, PacketSpec, build, default_packets
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
@@ -226,11 +226,12 @@ class StreamProcessor:
                                         "cleared": flag_names(prev & ~flags),
                                         "detail": self._fault_detail()}))
             self._last_flags = flags
+        memo: dict[str, Any] = {}  # the packets and the diag of this close read one state
         for spec in self.packets.values():
             if spec.trigger == "window" and spec.due(t):
-                self._out.append((f"tlm/{spec.name}", build(spec, self)))
+                self._out.append((f"tlm/{spec.name}", build(spec, self, memo=memo)))
         if self.diag.due(t):
-            self._out.append(("diag", self.diag_message()))
+            self._out.append(("diag", self.diag_message(memo)))
 
     def _sample_outputs(self) -> None:
         """Sample-triggered packets due at the newest sample time, with the predicted attitude."""
@@ -268,14 +269,22 @@ class StreamProcessor:
             d["fdi"] = self.engine.fdi.detail()
         return d
 
-    def diag_message(self) -> dict[str, Any]:
+    def diag_message(self, memo: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The diag message (CONTRACT §3); ``memo``: packet fields already read from this state
+        (:func:`radical_rt.telemetry.build`)."""
         e = self.engine
-        return {"v": 1, "t": e.t, "flags": self.flags, "mode": e.mode,
-                "residuals": e.residual_stats(), "counters": self.counters(),
+        memo = {} if memo is None else memo
+
+        def field(name: str) -> Any:
+            if name not in memo:
+                memo[name] = CATALOGUE[name][1](self)
+            return memo[name]
+
+        return {"v": 1, "t": e.t, "flags": field("flags"), "mode": e.mode,
+                "residuals": field("residuals"), "counters": field("counters"),
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
-                "clock": self.clock.telemetry(), "temps": dict(self.temps),
-                "latency": e.latency_estimate(),
-                "fdi": e.fdi.detail() if e.fdi is not None else None,
+                "clock": field("clock"), "temps": dict(self.temps),
+                "latency": field("latency"), "fdi": field("fdi"),
                 "ud": {"d_min": float(np.min(e.d)), "d_max": float(np.max(e.d))}}
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:

@@ -159,9 +159,12 @@ def load_packets(path: str | Path) -> dict[str, PacketSpec]:
         raise PacketError(f"{path}: {exc}") from None
 
 
-def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None) -> dict[str, Any]:
+def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None,
+          memo: dict[str, Any] | None = None) -> dict[str, Any]:
     """Build one packet map (with "v": 1) from the source's current state; fields named in
-    ``override`` take the given values instead (the predicted t, attitude and rate)."""
+    ``override`` take the given values instead (the predicted t, attitude and rate). ``memo``:
+    field values already read from this same state (packets built at one event share them; the
+    values are then shared objects, not copies), filled in as fields are read."""
     spec.seq += 1
     msg: dict[str, Any] = {"v": 1}
     for name in spec.fields:
@@ -169,6 +172,14 @@ def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None)
             msg[name] = spec.seq
         elif override is not None and name in override:
             msg[name] = override[name]
-        else:
+        elif memo is None:
             msg[name] = CATALOGUE[name][1](source)
+        else:
+            v = memo.get(name, _UNSET)
+            if v is _UNSET:
+                v = memo[name] = CATALOGUE[name][1](source)
+            msg[name] = v
     return msg
+
+
+_UNSET = object()

@@ -273,3 +273,21 @@ def test_attitude_error_propagation_matches_nonlinear_model():
     increment_jacobian_lin(A.T @ th_hat, sg, s, 0.01, th_hat, GEO.W, GEO.U, GEO.V, Gp, ACT, F)
     pred = Rotation.from_rotvec(th_hat).as_matrix().T @ dth0 + F @ dp[:5 * N_G]
     np.testing.assert_allclose(dth1, pred, atol=1e-3 * np.linalg.norm(dth1))
+
+
+def test_contract_sigma_from_ud_equals_the_mapped_covariance():
+    """EngineState.contract_sigma (UD factors, no P formed) = sqrt(diag(J P_pp Jᵀ))."""
+    from radical_rt.filter import Engine
+    from radical_rt.params import ParamTable
+    rng = np.random.default_rng(5)
+    eng = Engine(ParamTable())
+    ns = eng.ns
+    eng.U[:, :] = np.triu(rng.normal(scale=0.3, size=(ns, ns)), 1) + np.eye(ns)
+    eng.d[:] = rng.uniform(0.5, 2.0, ns) * 1e-8
+    eng.xp[:23] = internal_from_contract(random_contract(rng), N_G)
+    eng.xp[23:] = 1e-3  # the tracker latency state
+    P = eng.U @ np.diag(eng.d) @ eng.U.T
+    _, J = contract_from_internal(eng.xp, N_G)
+    want = np.sqrt(np.diag(J @ P[3:, 3:] @ J.T))
+    np.testing.assert_allclose(eng.contract_sigma(), want, rtol=1e-12)
+    np.testing.assert_allclose(np.sqrt(np.diag(eng.contract_params()[1])), want, rtol=1e-12)
