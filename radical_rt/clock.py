@@ -38,6 +38,7 @@ from radical_rt.clock_kernels import (
     O_T,
     O_TT,
     O_VAR,
+    clock_push_rows,
     clock_run,
     line_time,
     period,
@@ -168,6 +169,11 @@ def compile_kernels(n_gyro: int = 4) -> None:
     out_i = np.zeros((8, 3), np.int64)
     clock_run(ist, fst, np.array([1.0]), np.array([0], np.int64), np.zeros((1, n_gyro)),
               np.zeros(1, np.int64), 0, True, out_f, out_i)
+    q = np.zeros(8)
+    clock_push_rows(ist, fst, np.array([2.0]), np.array([1], np.int64), np.zeros((1, n_gyro)),
+                    np.zeros(1, np.int64), 16, out_f, out_i, 0, q, q.copy(),
+                    np.zeros((8, n_gyro)), np.zeros(8, np.int64), np.zeros(8, np.bool_), q.copy(),
+                    np.zeros(8, np.int64))
     _compiled.add(n_gyro)
 
 
@@ -193,8 +199,6 @@ class SiruClock:
         self._F[L.F_Y_LO] = self._F[L.P_Y_LO]
         self._F[L.F_Y_HI] = self._F[L.P_Y_HI]
         self._F[L.F_DELTA] = self._F[L.P_DELTA]
-        #: time tags of the samples of the last returned batch (-1 for bridged ones); diagnostic
-        self.last_tt = np.zeros(0, np.int64)
 
     # ------------------------------------------------------------------ streaming
     def push(self, t_bus, tt, dtheta, status) -> GyroBatch:
@@ -202,24 +206,33 @@ class SiruClock:
         return self._run(t_bus, tt, dtheta, status, final=False)
 
     def push_into(self, queue, t_bus, tt, dtheta, status) -> int:
-        """:meth:`push` with the released samples appended straight from the kernel's output
-        buffers to ``queue`` (a :class:`radical_rt.gyro_queue.GyroQueue`; no intermediate
+        """:meth:`push` with the released samples appended straight to ``queue`` (a
+        :class:`radical_rt.gyro_queue.GyroQueue`) by the clock kernel, in one call (no intermediate
         batch). t_bus (k,) float64, tt (k,) int64, dtheta (k, n) float64, status (k,) int64, all
         C-contiguous (as :func:`radical_rt.packets.decode_siru` returns them). Returns the number of
         samples appended; ``last_tt`` holds their tags."""
         self._sig_cache = None
         k = t_bus.shape[0]
         self._out_room(k)
-        total, j, tags = 0, 0, []
-        while j < k:
-            stop = min(j + _CHUNK, k)
-            m, j = clock_run(self._I, self._F, t_bus[:stop], tt[:stop], dtheta[:stop],
-                             status[:stop], j, False, self._of, self._oi)
-            queue.push_block(self._of, self._oi, m)
-            tags.append(self._oi[:m, O_TT].copy())
-            total += m
-        self.last_tt = tags[0] if len(tags) == 1 else np.concatenate(tags)
-        return total
+        bound = k * (int(self.config.max_bridge) + 1)
+        queue.reserve(bound)
+        if self._tags.shape[0] < bound:
+            self._tags = np.empty(bound + bound // 4, np.int64)
+        m = clock_push_rows(self._I, self._F, t_bus, tt, dtheta, status, _CHUNK, self._of,
+                            self._oi, queue.end, queue.t, queue.dt, queue.dtheta, queue.status,
+                            queue.bridged, queue.var_extra, self._tags)
+        queue.end += m
+        self._n_tags = m
+        return m
+
+    _tags = np.empty(0, np.int64)
+    _n_tags = 0
+
+    @property
+    def last_tt(self) -> np.ndarray:
+        """Time tags (k,) int64 of the samples the last push released (−1 for bridged ones); a
+        diagnostic."""
+        return self._tags[:self._n_tags].copy()
 
     def _out_room(self, k: int) -> None:
         """Output buffers (reused between calls) large enough for one chunk of k reads."""
@@ -272,7 +285,7 @@ class SiruClock:
             of, oi = parts_f[0], parts_i[0]
         else:
             of, oi = np.concatenate(parts_f), np.concatenate(parts_i)
-        self.last_tt = oi[:, O_TT]
+        self._tags, self._n_tags = oi[:, O_TT].copy(), oi.shape[0]
         return GyroBatch(of[:, O_T], of[:, O_DT], of[:, O_DTH:], oi[:, O_ST],
                          oi[:, O_BR].astype(bool), of[:, O_VAR])
 

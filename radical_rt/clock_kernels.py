@@ -334,3 +334,36 @@ def clock_run(I, F, t_bus, tt, dth, status, j0, final, OF, OI):
     if I[L.I_HAVE_P]:
         m = _process(I, F, OF, OI, False, 0.0, np.int64(0), m)
     return m, nr + 1
+
+
+@kernel
+def append_rows(of, oi, m, end, t, dt, dtheta, status, bridged, var_extra):
+    """Copy rows 0..m−1 of the output blocks (of, oi; columns O_*) into the sample arrays t, dt,
+    dtheta (·, n), status, bridged, var_extra (a :class:`radical_rt.gyro_queue.GyroQueue`) from
+    index end (the caller made room)."""
+    n = dtheta.shape[1]
+    for r in range(m):
+        k = end + r
+        t[k], dt[k], var_extra[k] = of[r, O_T], of[r, O_DT], of[r, O_VAR]
+        for i in range(n):
+            dtheta[k, i] = of[r, O_DTH + i]
+        status[k], bridged[k] = oi[r, O_ST], oi[r, O_BR] != 0
+
+
+@kernel
+def clock_push_rows(I, F, t_bus, tt, dth, status, chunk, OF, OI, end, t, dt, dtheta, st, bridged,
+                    var_extra, tags):
+    """All reads of one message through :func:`clock_run` (``chunk`` reads per pass through the
+    output blocks OF/OI), the released samples appended to the sample arrays from index end (as
+    :func:`append_rows`) and their time tags to tags (−1: bridged). The caller made room for
+    len(t_bus)·(max_bridge + 1) rows (the most the reads can release). Returns the rows appended."""
+    k = t_bus.shape[0]
+    j, total = 0, 0
+    while j < k:
+        stop = min(j + chunk, k)
+        m, j = clock_run(I, F, t_bus[:stop], tt[:stop], dth[:stop], status[:stop], j, False, OF, OI)
+        append_rows(OF, OI, m, end + total, t, dt, dtheta, st, bridged, var_extra)
+        for r in range(m):
+            tags[total + r] = OI[r, O_TT]
+        total += m
+    return total

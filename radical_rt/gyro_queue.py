@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
 from .clock import GyroBatch
-from .clock_kernels import O_BR, O_DT, O_DTH, O_ST, O_T, O_VAR
+from .clock_kernels import append_rows
 
 
 class GyroQueue:
@@ -55,9 +54,14 @@ class GyroQueue:
             return
         if self.end + m > len(self.t):
             self._make_room(m)
-        _append_block(of, oi, m, self.end, self.t, self.dt, self.dtheta, self.status,
-                      self.bridged, self.var_extra)
+        append_rows(of, oi, m, self.end, self.t, self.dt, self.dtheta, self.status,
+                    self.bridged, self.var_extra)
         self.end += m
+
+    def reserve(self, m: int) -> None:
+        """Make room for m more samples after ``end`` (moves or grows the arrays if needed)."""
+        if self.end + m > len(self.t):
+            self._make_room(m)
 
     def _make_room(self, m: int) -> None:
         """Move the pending samples to the front; double the capacity until m more fit."""
@@ -86,15 +90,3 @@ class GyroQueue:
         if self.end == self.head or self.t[self.end - 1] <= t_max:
             return self.end
         return self.head + int(self.t[self.head:self.end].searchsorted(t_max, side="right"))
-
-
-@kernel
-def _append_block(of, oi, m, end, t, dt, dtheta, status, bridged, var_extra):
-    """Copy rows 0..m−1 of the clock's output blocks into the queue arrays from index end."""
-    n = dtheta.shape[1]
-    for r in range(m):
-        k = end + r
-        t[k], dt[k], var_extra[k] = of[r, O_T], of[r, O_DT], of[r, O_VAR]
-        for i in range(n):
-            dtheta[k, i] = of[r, O_DTH + i]
-        status[k], bridged[k] = oi[r, O_ST], oi[r, O_BR] != 0
