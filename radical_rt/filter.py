@@ -215,7 +215,7 @@ class Engine(EngineState):
         for i, (j, epoch, q, n_stars, valid) in enumerate(events):
             ev_f[i, 0] = epoch
             ev_f[i, 1:5] = q
-            ev_i[i, 0], ev_i[i, 1], ev_i[i, 2] = j, n_stars, valid
+            ev_i[i] = j, n_stars, valid
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
         k, e = a, 0
@@ -281,14 +281,16 @@ class Engine(EngineState):
         self.last_valid_st[j] = t_epoch
         if self.fdi is not None:
             self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
-        if not out_i[2]:
+        status, edited, updated, consider = out_i.tolist()
+        if not updated:
             return False
         kind = _ST_KIND[j]
-        if out_i[3]:
+        if consider:
             self.counters[kind + "_consider"] += 1
-        self._check(int(out_i[0]))
+        if status:
+            self._check(status)
         return self._update_done(kind, out_f[1:4].copy(), out_f[4:7].copy(), float(out_f[0]),
-                                 bool(out_i[1]))
+                                 edited != 0)
 
     def _window_done(self, reason: int) -> None:
         """Python's share of a window close the gyro fast path handed over."""
@@ -305,25 +307,25 @@ class Engine(EngineState):
 
     def _fast_begin(self) -> None:
         """Load the scalar state into the fast path's io arrays."""
-        io, cnt = self._fast_io, self._fast_cnt
-        io[0], io[1], io[2] = self.t, self.locked_since, self.timing_sigma()
-        io[3], io[4] = self._wake()
-        io[5] = self.parity_queue[0][0] if self.parity_queue else math.inf
         last = self.last_valid_st
-        io[6], io[7] = last.get(1, -math.inf), last.get(2, -math.inf)
-        io[8] = _MODE_CODE.get(self.mode, -1.0)
-        cnt[0], cnt[1], cnt[2], cnt[3] = self.flags, 0, 0, -1
+        wake_t, wake_e = self._wake()
+        self._fast_io[:9] = (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
+                             self.parity_queue[0][0] if self.parity_queue else math.inf,
+                             last.get(1, -math.inf), last.get(2, -math.inf),
+                             _MODE_CODE.get(self.mode, -1.0))
+        self._fast_cnt[:4] = (self.flags, 0, 0, -1)
 
     def _fast_end(self) -> None:
         """Take the scalar state back from the fast path's io arrays."""
-        io, cnt = self._fast_io, self._fast_cnt
-        self.t, self.locked_since, self.flags = float(io[0]), float(io[1]), int(cnt[0])
-        if cnt[1]:
-            self.counters["siru_used"] += int(cnt[1])
-        if cnt[2]:
-            self.counters["siru_undetermined"] += int(cnt[2])
-        if cnt[3] >= 0:
-            self.masked = bool(cnt[3])
+        self.t, self.locked_since = self._fast_io[:2].tolist()
+        flags, used, undetermined, masked = self._fast_cnt[:4].tolist()
+        self.flags = flags
+        if used:
+            self.counters["siru_used"] += used
+        if undetermined:
+            self.counters["siru_undetermined"] += undetermined
+        if masked >= 0:
+            self.masked = masked != 0
 
     def _fast_config(self) -> None:
         """Scalar parameters and io arrays of the fast path (after every parameter change)."""
