@@ -294,7 +294,7 @@ class SiruClock:
         the increments as a view of the clock state (valid until the next push; read only)."""
         has, status, per = pending_read(self._I, self._F)
         dp = L.DA + self.n_gyro
-        return bool(has), int(status), float(per), self._F[dp:dp + self.n_gyro]
+        return has, status, per, self._F[dp:dp + self.n_gyro]
 
     def pending(self) -> tuple[np.ndarray, int] | None:
         """The read held back for look-ahead when it is probably the next sample (its tag differs

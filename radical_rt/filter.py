@@ -289,8 +289,8 @@ class Engine(EngineState):
             self.counters[kind + "_consider"] += 1
         if status:
             self._check(status)
-        return self._update_done(kind, out_f[1:4].copy(), out_f[4:7].copy(), float(out_f[0]),
-                                 edited != 0)
+        row = out_f.copy()
+        return self._update_done(kind, row[1:4], row[4:7], float(row[0]), edited != 0)
 
     def _window_done(self, reason: int) -> None:
         """Python's share of a window close the gyro fast path handed over."""
