@@ -188,12 +188,12 @@ class ParityDetector:
 
 # ----------------------------------------------------------------------------- buffers
 @kernel
-def _append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged):
-    """_SampleBuffer.append's copy: rows end.. of the float block (t, dt, var_extra, dθ), the
-    int block (status) and the bool block (bridged)."""
+def _append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a, z):
+    """_SampleBuffer.append's copy of source rows a..z−1: rows end.. of the float block (t, dt,
+    var_extra, dθ), the int block (status) and the bool block (bridged)."""
     n = dth.shape[1]
-    for r in range(t.shape[0]):
-        k = end + r
+    for r in range(a, z):
+        k = end + r - a
         f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
         for c in range(n):
             f[k, 3 + c] = dth[r, c]
@@ -221,14 +221,18 @@ class _SampleBuffer:
     def __len__(self) -> int:
         return self.end - self.i0
 
-    def append(self, arrays) -> None:
+    def append(self, arrays, a: int = 0, z: int | None = None) -> None:
+        """Copy rows a..z−1 (default: all) of the sample arrays (t, dt, dθ, status, bridged,
+        var_extra)."""
         t, dt, dth, status, bridged, var_extra = arrays
-        m = len(t)
-        if m == 0:
+        z = len(t) if z is None else z
+        m = z - a
+        if m <= 0:
             return
         if self._f.shape[1] != self._COLS + dth.shape[1] or self.end + m > len(self._i):
             self._make_room(m, dth.shape[1])
-        _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged)
+        _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged,
+                     a, z)
         self.end += m
 
     def _make_room(self, m: int, n: int) -> None:
@@ -507,6 +511,11 @@ class FaultMonitor:
     def on_gyro(self, t, dt, dtheta, status, bridged, var_extra) -> None:
         """Every gyro batch the engine receives (before propagation)."""
         self.gbuf.append((t, dt, dtheta, status, bridged, var_extra))
+
+    def on_gyro_rows(self, arrays, a: int, z: int) -> None:
+        """:meth:`on_gyro` of rows a..z−1 of the sample arrays (t, dt, dθ, status, bridged,
+        var_extra), without views (the stream processor's gyro queue)."""
+        self.gbuf.append(arrays, a, z)
 
     def on_tracker(self, j: int, t_epoch: float, q_meas, n_stars: int) -> None:
         """Every valid tracker sample the engine receives (before its update)."""

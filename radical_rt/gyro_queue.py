@@ -80,11 +80,6 @@ class GyroQueue:
         """The whole arrays (t, dt, dtheta, status, bridged, var_extra): index with head..end."""
         return self.t, self.dt, self.dtheta, self.status, self.bridged, self.var_extra
 
-    def view(self, a: int, b: int) -> tuple[np.ndarray, ...]:
-        """Views of samples a..b−1 (absolute indices), in the order of :meth:`arrays`."""
-        return (self.t[a:b], self.dt[a:b], self.dtheta[a:b], self.status[a:b], self.bridged[a:b],
-                self.var_extra[a:b])
-
     def upto(self, t_max: float) -> int:
         """End index of the pending samples with t ≤ t_max."""
         if self.end == self.head or self.t[self.end - 1] <= t_max:

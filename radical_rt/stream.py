@@ -152,7 +152,7 @@ class StreamProcessor:
         arrays = gq.arrays()
         if z > a:
             if e.fdi is not None:
-                e.fdi.on_gyro(*gq.view(a, z))
+                e.fdi.on_gyro_rows(arrays, a, z)
             self.released_t = max(self.released_t, float(gq.t[z - 1]))
         e.release(arrays, a, z, events)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
-from .ud import agee_turner, bierman_update
+from .ud import _ut_times, agee_turner, bierman_update
 
 UPDATE_ACCEPTED = 0
 UPDATE_EDITED = 1
@@ -28,11 +28,7 @@ def innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig):
         for j in range(n):
             s += H[a, j] * dx[j]
         innov[a] = z[a] - s
-        for j in range(n):  # F[a] = Uᵀ h_a  (U unit upper triangular)
-            acc = H[a, j]
-            for i in range(j):
-                acc += U[i, j] * H[a, i]
-            F[a, j] = acc
+        _ut_times(U, H[a], F[a], n)  # F[a] = Uᵀ h_a (U unit upper triangular; zeros of h skipped)
     for a in range(m):
         for b in range(m):
             acc = rdiag[a] if a == b else 0.0
