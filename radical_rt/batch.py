@@ -59,14 +59,18 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
         for i, reader in enumerate(readers):
             if i > 0:
                 _write(writer, sp.end_stream("cold" if cold else "warm"))
+            feed = sp.feed
             for topic, log_ns, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
                 if topic == "/truth/params":
                     truth = data
                     if writer and i == len(readers) - 1:
                         writer.write_raw(topic, data, log_ns)
                     continue
-                _write(writer, sp.feed(topic[1:], data))
-                bar.update(1)
+                out = feed(topic[1:], data)
+                if out and writer:
+                    _write(writer, out)
+                if progress:
+                    bar.update(1)
         _write(writer, sp.end_stream(None))
     finally:
         bar.close()

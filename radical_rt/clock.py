@@ -312,7 +312,7 @@ class SiruClock:
     @property
     def counters(self) -> dict[str, int]:
         """Cumulative counters (CONTRACT §5 meanings for samples, repeated, missing)."""
-        c = {name: int(self._I[L.C0 + i]) for i, name in enumerate(COUNTER_NAMES)}
+        c = dict(zip(COUNTER_NAMES, self._I[L.C0:L.C0 + len(COUNTER_NAMES)].tolist(), strict=True))
         c["tag_wraps"] = int(self._I[L.I_NET_HI] - self._I[L.I_NET_LO])
         return c
 

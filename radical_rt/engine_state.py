@@ -143,14 +143,24 @@ class EngineState:
     def estimates(self) -> dict[str, list[float]]:
         """Parameter estimates per group (CONTRACT §1.5 parameters), SI."""
         xc, _ = contract_from_internal(self.xp, self.n_gyro)
-        return {g: xc[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
+        return self._by_group(xc)
+
+    def _by_group(self, values: np.ndarray) -> dict[str, list[float]]:
+        """Split a parameter vector (npar,) into {group: list} (PARAM_GROUPS order)."""
+        v = values.tolist()
+        return {g: v[sl] for g, sl in self._group_slices()}
+
+    def _group_slices(self) -> list[tuple[str, slice]]:
+        gs = self.__dict__.get("_gs")
+        if gs is None or gs[0] is not self.layout:
+            gs = self.__dict__["_gs"] = (self.layout, [(g, _psl(self.layout, g)) for g in PARAM_GROUPS])
+        return gs[1]
 
     def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
         """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for
         compatibility): the σ come from the full parameter covariance mapped to the contract's
         parameters."""
-        sd = self.contract_sigma()
-        return {g: sd[_psl(self.layout, g)].tolist() for g in PARAM_GROUPS}
+        return self._by_group(self.contract_sigma())
 
     def contract_sigma(self) -> np.ndarray:
         """1σ (npar,) of the contract's parameters: sqrt(diag(J P_pp Jᵀ)) straight from the UD

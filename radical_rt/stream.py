@@ -285,7 +285,7 @@ class StreamProcessor:
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),
                 "latency": field("latency"), "fdi": field("fdi"),
-                "ud": {"d_min": float(np.min(e.d)), "d_max": float(np.max(e.d))}}
+                "ud": {"d_min": float(e.d.min()), "d_max": float(e.d.max())}}
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:
         out, self._out = self._out, []
