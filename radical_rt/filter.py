@@ -229,11 +229,13 @@ class Engine(EngineState):
                 self._fb, self._ib, self._bb, self._lay, self._fast_cfg, self._fast_io,
                 self._fast_cnt, evo_f, evo_i)
             self._fast_end()
-            for i in range(e, e_stop):  # events the kernel completed
-                self._tracker_bookkeeping(events[i], evo_f[i], evo_i[i])
+            if e_stop > e:  # events the kernel completed
+                rows_f, rows_i = evo_f[e:e_stop].copy(), evo_i[e:e_stop].tolist()
+                for i in range(e, e_stop):
+                    self._tracker_bookkeeping(events[i], rows_f[i - e], rows_i[i - e])
             e = e_stop
             if stage == 1:
-                self._tracker_done(reason, events[e], evo_f[e], evo_i[e])
+                self._tracker_done(reason, events[e], evo_f[e].copy(), evo_i[e].tolist())
                 e += 1
                 continue
             if reason == fp.R_DONE:
@@ -276,12 +278,13 @@ class Engine(EngineState):
     def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
         """The reference path's bookkeeping of a valid tracker event the fast path took: last
         valid epoch, FDI hook and, if its update ran (out_i[2]), status check, diagnostics and
-        counters. out_f, out_i: the event's rows of fast_release's evo_f, evo_i. Returns used."""
+        counters. out_f (7,): a copy of the event's row of fast_release's evo_f (kept as the
+        diagnostics); out_i: its row of evo_i as a list. Returns used."""
         j, t_epoch, q_meas, n_stars, _valid = ev
         self.last_valid_st[j] = t_epoch
         if self.fdi is not None:
             self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
-        status, edited, updated, consider = out_i.tolist()
+        status, edited, updated, consider = out_i
         if not updated:
             return False
         kind = _ST_KIND[j]
@@ -289,8 +292,7 @@ class Engine(EngineState):
             self.counters[kind + "_consider"] += 1
         if status:
             self._check(status)
-        row = out_f.copy()
-        return self._update_done(kind, row[1:4], row[4:7], float(row[0]), edited != 0)
+        return self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
 
     def _window_done(self, reason: int) -> None:
         """Python's share of a window close the gyro fast path handed over."""
