@@ -296,6 +296,11 @@ class SiruClock:
         dp = L.DA + self.n_gyro
         return has, status, per, self._F[dp:dp + self.n_gyro]
 
+    def state_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The clock's state arrays (int I, float F; layout :mod:`radical_rt.clock_layout`) for
+        kernels that read it (:func:`radical_rt.gyro_queue.predict_pending`); read only."""
+        return self._I, self._F
+
     def pending(self) -> tuple[np.ndarray, int] | None:
         """The read held back for look-ahead when it is probably the next sample (its tag differs
         from the last accepted one): ``(dtheta (n,) rad, status bits)``; None otherwise. For

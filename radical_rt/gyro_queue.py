@@ -10,10 +10,16 @@ prediction of sample-triggered telemetry.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from . import clock_layout as L
+from ._jit import kernel
 from .clock import GyroBatch
 from .clock_kernels import append_rows
+from .clock_timing import pending_read
+from .propagate import predict_now
 
 
 class GyroQueue:
@@ -85,3 +91,22 @@ class GyroQueue:
         if self.end == self.head or self.t[self.end - 1] <= t_max:
             return self.end
         return self.head + int(self.t[self.head:self.end].searchsorted(t_max, side="right"))
+
+
+@kernel
+def predict_pending(dtheta, dt, status, a, b, t_now, clock_I, clock_F, excluded, xp, A, Gp, q,
+                    omega):
+    """The attitude of sample-triggered telemetry in one call: q (4,) q_body_from_inertial and
+    omega (3,) [rad/s] (in place, from the filter's estimate) propagated through the queue's
+    pending samples a..b−1 (dtheta (m, n), dt, status) and, when the SIRU clock (state arrays
+    clock_I, clock_F) holds back a read that is probably the next sample, through that read as
+    one more sample one estimated period later (:func:`radical_rt.propagate.predict_now`).
+    Returns the time of the prediction [s]: t_now, plus the period if the held-back read was
+    used (not when t_now is not finite)."""
+    has, pend_status, period = pending_read(clock_I, clock_F)
+    use = has and math.isfinite(t_now)
+    n = dtheta.shape[1]
+    dp = L.DA + n
+    predict_now(dtheta, dt, status, a, b, clock_F[dp:dp + n], pend_status, period, use, excluded,
+                xp, A, Gp, q, omega)
+    return t_now + period if use else t_now

@@ -25,9 +25,8 @@ import numpy as np
 from .clock import ClockConfig, SiruClock
 from .filter import Engine
 from .flags import Flag, flag_names
-from .gyro_queue import GyroQueue
+from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .propagate import predict_now
 from .telemetry import CATALOGUE, PacketSpec, build, default_packets
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
@@ -250,13 +249,12 @@ class StreamProcessor:
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
             return _now_fields(e.t, q, omega)
-        gq, t = self._gq, self.t_now
+        gq = self._gq
         # the newest read, held back by the clock's look-ahead, taken as the next sample
-        has, status, period, dth = self.clock.pending_view()
-        use = has and math.isfinite(t)
-        predict_now(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, dth, status, period, use,
-                    e.excluded, e.xp, e.A, e.Gp, q, omega)
-        return _now_fields(t + period if use else t, q, omega)
+        clock_I, clock_F = self.clock.state_arrays()
+        t = predict_pending(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, self.t_now, clock_I,
+                            clock_F, e.excluded, e.xp, e.A, e.Gp, q, omega)
+        return _now_fields(t, q, omega)
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
