@@ -151,10 +151,11 @@ class EngineState:
         return {g: v[sl] for g, sl in self._group_slices()}
 
     def _group_slices(self) -> list[tuple[str, slice]]:
+        """(group, slice of xp) per parameter group (the layout is fixed; made once)."""
         gs = self.__dict__.get("_gs")
-        if gs is None or gs[0] is not self.layout:
-            gs = self.__dict__["_gs"] = (self.layout, [(g, _psl(self.layout, g)) for g in PARAM_GROUPS])
-        return gs[1]
+        if gs is None:
+            gs = self.__dict__["_gs"] = [(g, _psl(self.layout, g)) for g in PARAM_GROUPS]
+        return gs
 
     def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
         """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for

@@ -430,6 +430,25 @@ def scale_states(U, d, s):
 
 
 @kernel
+def cholesky_lower(R, m, L):
+    """Lower Cholesky factor L[:m, :m] (strict upper part not written) of the symmetric positive
+    definite R[:m, :m] (lower triangle read). Returns OK, or ERR_NOT_POSITIVE at a pivot ≤ 0."""
+    for j in range(m):
+        s = R[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return ERR_NOT_POSITIVE
+        L[j, j] = math.sqrt(s)
+        for i in range(j + 1, m):
+            t = R[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / L[j, j]
+    return OK
+
+
+@kernel
 def decorrelate(H, z, R, H_out, z_out, L_work):
     """Whitening of z = H x + v, cov(v) = R (§11.3; Bierman 1977 ch. V): R = L Lᵀ (L lower,
     in L_work (≥ m, ≥ m)), H_out[:m] ← L⁻¹H, z_out[:m] ← L⁻¹z, so each row is a scalar update with
@@ -443,18 +462,8 @@ def decorrelate(H, z, R, H_out, z_out, L_work):
     if not (_finite(H) and _finite(R) and _finite(z)):
         return ERR_NONFINITE
     L = L_work
-    for j in range(m):  # Cholesky, lower
-        s = R[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return ERR_NOT_POSITIVE
-        L[j, j] = math.sqrt(s)
-        for i in range(j + 1, m):
-            t = R[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / L[j, j]
+    if cholesky_lower(R, m, L) != OK:
+        return ERR_NOT_POSITIVE
     for i in range(m):  # forward substitution, row by row (alias-safe)
         for col in range(n):
             t = H[i, col]

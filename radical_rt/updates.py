@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
-from .ud import _ut_times, agee_turner, bierman_update
+from .ud import _ut_times, agee_turner, bierman_update, cholesky_lower
 
 UPDATE_ACCEPTED = 0
 UPDATE_EDITED = 1
@@ -46,20 +46,11 @@ def spd_quadratic(S, v):
     update then edits the measurement)."""
     m = v.shape[0]
     L = np.zeros((m, m))
-    y = np.empty(m)
+    if cholesky_lower(S, m, L) != 0:
+        return np.nan
     out = 0.0
-    for j in range(m):
-        s = S[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return np.nan
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, m):
-            t = S[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / L[j, j]
+    y = np.empty(m)
+    for j in range(m):  # y = L⁻¹v
         t = v[j]
         for k in range(j):
             t -= L[j, k] * y[k]
