@@ -1,0 +1,211 @@
+"""The engine's shell around its compiled fast path (:mod:`radical_rt.fastpath`).
+
+:class:`FastRelease` is the part of :class:`radical_rt.filter.Engine` that hands one whole
+release of the stream processor to :func:`radical_rt.fastpath.fast_release` and does, in Python,
+what the kernel hands back: the bookkeeping of the tracker samples it completed, the reference
+steps from a handover point on (:meth:`_window_done`, :meth:`_tracker_done`), and the loading
+and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, :meth:`_fast_end`).
+The reference path itself (``Engine.gyro``, ``Engine.tracker`` and their helpers) stays in
+:mod:`radical_rt.filter`; docs/engine.md §1.1 describes both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from . import fastpath as fp
+from .flags import Flag
+
+_ST_KIND = {1: "st1", 2: "st2"}
+_ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
+_MODE_CODE = {"converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
+              "degraded": fp.MODE_DEGRADED}  # io[8] of radical_rt.fastpath ("init": −1)
+
+
+def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                            np.ndarray, np.ndarray]:
+    """Samples a..b−1 of gyro arrays (t, dt, dtheta, status, bridged, var_extra), as views."""
+    t, dt, dtheta, status, bridged, var_extra = arrays
+    return t[a:b], dt[a:b], dtheta[a:b], status[a:b], bridged[a:b], var_extra[a:b]
+
+
+class FastRelease:
+    """Mixin of :class:`radical_rt.filter.Engine`: :meth:`release` and its fast-path glue."""
+
+    def release(self, arrays, a: int, z: int, events) -> None:
+        """One release of the stream processor: for each tracker event (j, t_epoch, q_meas,
+        n_stars, valid) in epoch order, the gyro samples up to its epoch, then the sample; then
+        the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
+        (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`; the caller has given them to the
+        FDI hook). The same as the reference calls, run by :func:`fastpath.fast_release` while it
+        applies."""
+        n_ev = len(events)
+        if not self.fast:
+            self._release_ref(arrays, a, z, events)
+            return
+        ev_f, ev_i, evo_f, evo_i = self._event_buffers(n_ev)
+        for i, (j, epoch, q, n_stars, valid) in enumerate(events):
+            ev_f[i, 0] = epoch
+            ev_f[i, 1:5] = q
+            ev_i[i] = j, n_stars, valid
+        t, dt, dtheta, status, bridged, var_extra = arrays
+        R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
+        k, e = a, 0
+        while k < z or e < n_ev:
+            if not self.att_valid:
+                self._release_ref(arrays, k, z, events[e:])
+                return
+            self._fast_begin()
+            reason, k, e_stop, stage = fp.fast_release(
+                t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
+                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, self._fast_io,
+                self._fast_cnt, evo_f, evo_i)
+            self._fast_end()
+            if e_stop > e:  # events the kernel completed
+                rows_f, rows_i = evo_f[e:e_stop].copy(), evo_i[e:e_stop].tolist()
+                for i in range(e, e_stop):
+                    self._tracker_bookkeeping(events[i], rows_f[i - e], rows_i[i - e])
+            e = e_stop
+            if stage == 1:
+                self._tracker_done(reason, events[e], evo_f[e].copy(), evo_i[e].tolist())
+                e += 1
+                continue
+            if reason == fp.R_DONE:
+                continue
+            # the reference path to the next event (or to z); the kernel then takes the event
+            seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], events[e][1], side="right"))
+            if reason == fp.R_SLOW:  # a gap at sample k
+                self._gyro_body(*_span(arrays, k, seg), 0)
+                k = seg
+            else:
+                self._window_done(reason)
+                if not self.att_valid and k < seg:
+                    self._gyro_resume(*_span(arrays, k, seg))
+                    k = seg
+
+    def _release_ref(self, arrays, a: int, z: int, events) -> None:
+        """The reference path of :meth:`release` (FDI hook already called by the stream)."""
+        t = arrays[0]
+        k = a
+        for ev in events:
+            up = k + int(np.searchsorted(t[k:z], ev[1], side="right"))
+            if up > k:
+                self._gyro_body(*_span(arrays, k, up), 0)
+            k = up
+            self.tracker(*ev)
+        if z > k:
+            self._gyro_body(*_span(arrays, k, z), 0)
+
+    def _event_buffers(self, n: int) -> tuple[np.ndarray, ...]:
+        """Tracker event buffers of fastpath.fast_release for n events (grown as needed)."""
+        bufs = self._ev_bufs
+        if bufs is None or bufs[0].shape[0] < n:
+            m = max(n, 8)
+            bufs = self._ev_bufs = (np.zeros((m, 5)), np.zeros((m, 3), np.int64),
+                                    np.zeros((m, 7)), np.zeros((m, 4), np.int64))
+        return bufs
+
+    _ev_bufs: tuple[np.ndarray, ...] | None = None
+
+    def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
+        """The reference path's bookkeeping of a valid tracker event the fast path took: last
+        valid epoch, FDI hook and, if its update ran (out_i[2]), status check, diagnostics and
+        counters. out_f (7,): a copy of the event's row of fast_release's evo_f (kept as the
+        diagnostics); out_i: its row of evo_i as a list. Returns used."""
+        j, t_epoch, q_meas, n_stars, _valid = ev
+        self.last_valid_st[j] = t_epoch
+        if self.fdi is not None:
+            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
+        status, edited, updated, consider = out_i
+        if not updated:
+            return False
+        kind = _ST_KIND[j]
+        if consider:
+            self.counters[kind + "_consider"] += 1
+        if status:
+            self._check(status)
+        return self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+
+    def _window_done(self, reason: int) -> None:
+        """Python's share of a window close the gyro fast path handed over."""
+        if reason == fp.R_CLOSE_TAIL:
+            self._check(int(self._fast_cnt[4]))
+            self._close_tail()
+            self._apply_correction()
+        elif reason == fp.R_NUMERIC_FOLD:
+            self._numeric("sense-axis geometry singular")
+        self.on_window(self.t)
+
+    # ---------------------------------------------------------------- fast-path glue
+    fast = True  # use radical_rt.fastpath (the dense reference of perf/ turns it off)
+
+    def _fast_begin(self) -> None:
+        """Load the scalar state into the fast path's io arrays."""
+        last = self.last_valid_st
+        wake_t, wake_e = self._wake()
+        self._fast_io[:9] = (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
+                             self.parity_queue[0][0] if self.parity_queue else math.inf,
+                             last.get(1, -math.inf), last.get(2, -math.inf),
+                             _MODE_CODE.get(self.mode, -1.0))
+        self._fast_cnt[:4] = (self.flags, 0, 0, -1)
+
+    def _fast_end(self) -> None:
+        """Take the scalar state back from the fast path's io arrays."""
+        self.t, self.locked_since = self._fast_io[:2].tolist()
+        flags, used, undetermined, masked = self._fast_cnt[:4].tolist()
+        self.flags = flags
+        if used:
+            self.counters["siru_used"] += used
+        if undetermined:
+            self.counters["siru_undetermined"] += undetermined
+        if masked >= 0:
+            self.masked = masked != 0
+
+    def _fast_config(self) -> None:
+        """Scalar parameters and io arrays of the fast path (after every parameter change)."""
+        si = self.si
+        self._fast_cfg = np.array([
+            si.prop_window, si.arw_var_per_s, si.quant_var, si.regressor_k_sigma, si.parity_window,
+            si.gyro_gap_s, si.parity_lag_s, si.st_stale_s, si.timing_consider_s, self.n_gyro,
+            si.st_ref_stars, si.gate_st_nis, 1.0 if si.edit_enabled else 0.0, self._phi_col,
+            self._lat_col, self._phi_col - 3, self._lat_col - 3, si.st_min_stars], dtype=np.float64)
+        self._fast_io = np.zeros(10)
+        self._fast_cnt = np.zeros(8, np.int64)
+
+    def _wake(self) -> tuple[float, float]:
+        """(wake_t, wake_e) of radical_rt.fastpath: the event time and the engine time from which
+        :meth:`on_window` has work although the flags stay the same (−inf: at once)."""
+        wake_e = math.inf if self.fdi is None else self.fdi.wake_time()
+        src = self.wake_source
+        if src is None:
+            return math.inf, wake_e
+        wake_t, e = src()
+        return wake_t, min(wake_e, e)
+
+    # callable() → (wake_t, wake_e) of the listener (the stream's packets)
+    wake_source: Callable[[], tuple[float, float]] | None = None
+
+    def _tracker_done(self, reason: int, ev, out_f, out_i) -> None:
+        """A tracker event at which :func:`radical_rt.fastpath.fast_release` handed over: the
+        bookkeeping of what the kernel did, then the reference steps from there."""
+        if reason == fp.R_TRACKER_PY:  # invalid sample: the reference path counts it
+            self.tracker(*ev)
+            return
+        used = self._tracker_bookkeeping(ev, out_f, out_i)
+        j, t_epoch, q_meas, n_stars, _valid = ev
+        if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:
+            if reason == fp.R_CLOSE_TAIL:
+                self._check(int(out_i[0]))
+                self._close_tail()
+            self._tracker_update(j, t_epoch, q_meas, n_stars)
+            self._apply_correction()
+        elif reason == fp.R_VEC_STATUS:
+            bit = _ST_EDITED_BIT[j]
+            self.flags = (self.flags & ~bit) | (0 if used else bit)
+            self._apply_correction()
+        elif reason == fp.R_NUMERIC_FOLD:
+            self._numeric("sense-axis geometry singular")
+        self.on_window(t_epoch)
