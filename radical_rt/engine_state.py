@@ -28,6 +28,8 @@ class EngineState:
 
     def __init__(self, layout: StateLayout, geometry: Geometry) -> None:
         self.layout, self.geo = layout, geometry
+        #: (group, slice of xp) per parameter group, for the per-group outputs
+        self._group_slices = [(g, _psl(layout, g)) for g in PARAM_GROUPS]
         n = self.n_gyro = geometry.n_gyro
         ns = self.ns = layout.n_states
         npar, nr = ns - 3, n - 3
@@ -148,14 +150,7 @@ class EngineState:
     def _by_group(self, values: np.ndarray) -> dict[str, list[float]]:
         """Split a parameter vector (npar,) into {group: list} (PARAM_GROUPS order)."""
         v = values.tolist()
-        return {g: v[sl] for g, sl in self._group_slices()}
-
-    def _group_slices(self) -> list[tuple[str, slice]]:
-        """(group, slice of xp) per parameter group (the layout is fixed; made once)."""
-        gs = self.__dict__.get("_gs")
-        if gs is None:
-            gs = self.__dict__["_gs"] = [(g, _psl(self.layout, g)) for g in PARAM_GROUPS]
-        return gs
+        return {g: v[sl] for g, sl in self._group_slices}
 
     def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
         """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for

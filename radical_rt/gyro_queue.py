@@ -17,7 +17,6 @@ import numpy as np
 from . import clock_layout as L
 from ._jit import kernel
 from .clock import GyroBatch
-from .clock_kernels import append_rows
 from .clock_timing import pending_read
 from .propagate import predict_now
 
@@ -46,22 +45,10 @@ class GyroQueue:
     def push(self, b: GyroBatch) -> None:
         """Append a batch of samples (later than the pending ones)."""
         m = len(b.t)
-        if self.end + m > len(self.t):
-            self._make_room(m)
+        self.reserve(m)
         s = slice(self.end, self.end + m)
         self.t[s], self.dt[s], self.dtheta[s] = b.t, b.dt, b.dtheta
         self.status[s], self.bridged[s], self.var_extra[s] = b.status, b.bridged, b.var_extra
-        self.end += m
-
-    def push_block(self, of: np.ndarray, oi: np.ndarray, m: int) -> None:
-        """Append rows 0..m−1 of the clock kernel's output blocks (float of, int oi; columns
-        O_* of :mod:`radical_rt.clock_layout`), as :meth:`push` of the batch they would make."""
-        if m == 0:
-            return
-        if self.end + m > len(self.t):
-            self._make_room(m)
-        append_rows(of, oi, m, self.end, self.t, self.dt, self.dtheta, self.status,
-                    self.bridged, self.var_extra)
         self.end += m
 
     def reserve(self, m: int) -> None:

@@ -86,6 +86,13 @@ def masked_pinv(Wt, active, Minv_out, Gp_out):
 def apply_body_rotation(q, theta, work4, dq):
     """q_body_from_inertial ← R(theta)ᵀ ∘ q: the body turned by theta (3,) [rad, body axes]."""
     rotvec_to_quat_into(theta, dq)
+    apply_body_quat(q, dq, work4)
+
+
+@kernel
+def apply_body_quat(q, dq, work4):
+    """:func:`apply_body_rotation` with the quaternion dq (4,) of R(theta) already computed (dq
+    is conjugated in place); work4 (4,) work."""
     dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
     quat_mul_into(dq, q, work4)
     for k in range(4):

@@ -23,6 +23,7 @@ import numpy as np
 
 from ._jit import kernel
 from .model import (
+    apply_body_quat,
     apply_body_rotation,
     correct_increment_lin,
     increment_jacobian_lin,
@@ -86,8 +87,8 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
         for i in range(n):
             gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
         increment_jacobian_lin(gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
-        rotvec_to_quat_into(th, work4)
-        quat_to_dcm_into(work4, R)
+        rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
+        quat_to_dcm_into(dq, R)
         # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
         for j in range(3):
             x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
@@ -107,7 +108,7 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
                 Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
             Q_aa[r, r] += var_extra[k]
             omega[r] = th[r] / h
-        apply_body_rotation(q, th, work4, dq)
+        apply_body_quat(q, dq, work4)
         if n_act == n and not bridged[k] and N.shape[1] > 0:
             for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
                 row = 0 if sg[i] > 0.0 else 1

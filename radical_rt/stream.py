@@ -27,7 +27,7 @@ from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .telemetry import CATALOGUE, PacketSpec, build, default_packets
+from .telemetry import PacketSpec, build, default_packets, read_field
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
@@ -274,9 +274,7 @@ class StreamProcessor:
         memo = {} if memo is None else memo
 
         def field(name: str) -> Any:
-            if name not in memo:
-                memo[name] = CATALOGUE[name][1](self)
-            return memo[name]
+            return read_field(name, self, memo)
 
         return {"v": 1, "t": e.t, "flags": field("flags"), "mode": e.mode,
                 "residuals": field("residuals"), "counters": field("counters"),

@@ -172,14 +172,20 @@ def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None,
             msg[name] = spec.seq
         elif override is not None and name in override:
             msg[name] = override[name]
-        elif memo is None:
-            msg[name] = CATALOGUE[name][1](source)
         else:
-            v = memo.get(name, _UNSET)
-            if v is _UNSET:
-                v = memo[name] = CATALOGUE[name][1](source)
-            msg[name] = v
+            msg[name] = read_field(name, source, memo)
     return msg
+
+
+def read_field(name: str, source: Any, memo: dict[str, Any] | None = None) -> Any:
+    """The value of catalogue field ``name`` from ``source``; with ``memo``, read at most once
+    (the value is stored there and shared by every packet built from the same state)."""
+    if memo is None:
+        return CATALOGUE[name][1](source)
+    v = memo.get(name, _UNSET)
+    if v is _UNSET:
+        v = memo[name] = CATALOGUE[name][1](source)
+    return v
 
 
 _UNSET = object()
