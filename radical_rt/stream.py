@@ -27,6 +27,7 @@ from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
+from .siru_wire import SiruWire
 from .telemetry import PacketSpec, build, default_packets, read_field
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
@@ -51,6 +52,7 @@ class StreamProcessor:
         self._out: list[tuple[str, dict[str, Any]]] = []
         self._last_flags = None
         self._gq = GyroQueue(engine.n_gyro)
+        self._wire = SiruWire(engine.n_gyro)  # compiled decoding of plain siru messages
         self._begin_stream()
         engine.listener = self._on_window
         engine.wake_source = self._wake
@@ -73,9 +75,11 @@ class StreamProcessor:
         try:
             if topic not in INPUT_TOPICS:
                 raise InputError("unknown_topic", f"unknown input topic {topic!r}")
-            msg = unpack(payload)
+            cols = self._wire.decode(payload) if topic == "siru" and isinstance(
+                payload, (bytes, bytearray, memoryview)) else None
+            msg = unpack(payload) if cols is None else None
             if topic == "siru":
-                self._feed_siru(msg)
+                self._feed_siru(decode_siru(msg, self.engine.n_gyro) if cols is None else cols)
             elif topic == "temp":
                 t, values = decode_temp(msg)
                 self._check_time(topic, t)
@@ -100,8 +104,10 @@ class StreamProcessor:
         self.last_t[topic] = t
         self.t_max = max(self.t_max, t)
 
-    def _feed_siru(self, msg: dict) -> None:
-        t_bus, tt, dth, status = decode_siru(msg, self.engine.n_gyro)
+    def _feed_siru(self, cols) -> None:
+        """cols: (t_bus (k,) [s], tt (k,) int64, dtheta (k, n) [rad], status (k,) int64), as
+        :func:`radical_rt.packets.decode_siru` returns them."""
+        t_bus, tt, dth, status = cols
         self._check_time("siru", float(t_bus[0]))
         self.last_t["siru"] = float(t_bus[-1])
         self.t_max = max(self.t_max, float(t_bus[-1]))
