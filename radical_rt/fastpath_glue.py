@@ -4,7 +4,7 @@
 release of the stream processor to :func:`radical_rt.fastpath.fast_release` and does, in Python,
 what the kernel hands back: the bookkeeping of the tracker samples it completed, the reference
 steps from a handover point on (:meth:`_window_done`, :meth:`_tracker_done`), and the loading
-and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, :meth:`_fast_end`).
+and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, and the end of each kernel call in :meth:`release`).
 The reference path itself (``Engine.gyro``, ``Engine.tracker`` and their helpers) stays in
 :mod:`radical_rt.filter`; docs/engine.md §1.1 describes both.
 """
@@ -53,17 +53,25 @@ class FastRelease:
             ev_i[i] = j, n_stars, valid
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
+        io, cnt, run = self._fast_io, self._fast_cnt, fp.fast_release
         k, e = a, 0
         while k < z or e < n_ev:
             if not self.att_valid:
                 self._release_ref(arrays, k, z, events[e:])
                 return
             self._fast_begin()
-            reason, k, e_stop, stage = fp.fast_release(
+            reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
-                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, self._fast_io,
-                self._fast_cnt, evo_f, evo_i)
-            self._fast_end()
+                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i)
+            # _fast_end: the scalar state back from the io arrays
+            self.t, self.locked_since = io[:2].tolist()
+            self.flags, used, undetermined, masked = cnt[:4].tolist()
+            if used:
+                self.counters["siru_used"] += used
+            if undetermined:
+                self.counters["siru_undetermined"] += undetermined
+            if masked >= 0:
+                self.masked = masked != 0
             if e_stop > e:  # events the kernel completed
                 rows_f, rows_i = evo_f[e:e_stop].copy(), evo_i[e:e_stop].tolist()
                 for i in range(e, e_stop):
@@ -143,26 +151,14 @@ class FastRelease:
     fast = True  # use radical_rt.fastpath (the dense reference of perf/ turns it off)
 
     def _fast_begin(self) -> None:
-        """Load the scalar state into the fast path's io arrays."""
-        last = self.last_valid_st
+        """Load the scalar state into the fast path's io arrays (:meth:`release` takes it back
+        after each kernel call)."""
+        last, pq = self.last_valid_st, self.parity_queue
         wake_t, wake_e = self._wake()
         self._fast_io[:9] = (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
-                             self.parity_queue[0][0] if self.parity_queue else math.inf,
-                             last.get(1, -math.inf), last.get(2, -math.inf),
-                             _MODE_CODE.get(self.mode, -1.0))
+                             pq[0][0] if pq else math.inf, last.get(1, -math.inf),
+                             last.get(2, -math.inf), _MODE_CODE.get(self.mode, -1.0))
         self._fast_cnt[:4] = (self.flags, 0, 0, -1)
-
-    def _fast_end(self) -> None:
-        """Take the scalar state back from the fast path's io arrays."""
-        self.t, self.locked_since = self._fast_io[:2].tolist()
-        flags, used, undetermined, masked = self._fast_cnt[:4].tolist()
-        self.flags = flags
-        if used:
-            self.counters["siru_used"] += used
-        if undetermined:
-            self.counters["siru_undetermined"] += undetermined
-        if masked >= 0:
-            self.masked = masked != 0
 
     def _fast_config(self) -> None:
         """Scalar parameters and io arrays of the fast path (after every parameter change)."""

@@ -53,7 +53,7 @@ SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
 BUFFER_S = 600.0  # gyro and tracker history kept for the bank
 ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
 BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
-CHECK_PERIOD_S = 1.0  # bookkeeping period outside an alarm
+CHECK_MAX_S = 2.0  # outside an alarm: bookkeeping at each parity sum, at the latest this long after the last
 QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
 NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
 CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
@@ -481,6 +481,7 @@ class FaultMonitor:
         self.parity_log: deque = deque()  # (t0, z) of recent sums, for the fault-size estimate
         self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
         self._next_check = -math.inf
+        self._sum_seen = False  # a parity sum closed since the last bookkeeping
         self.failed_by_fdi: set[int] = set()
         self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
         self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
@@ -525,7 +526,9 @@ class FaultMonitor:
     def on_parity_sum(self, eng, par_y, par_t, noise: float) -> None:
         """Every closed parity sum (before it waits for its lagged update): the calibrated
         innovation z = Nᵀĉ − h·dx with the current estimate, and σ² = h P hᵀ + R from the UD
-        factors (all states, considered ones included)."""
+        factors (all states, considered ones included). The next window close runs the
+        bookkeeping (:meth:`on_window`)."""
+        self._sum_seen = True
         if not self.enabled(eng):
             return
         n, ns = eng.n_gyro, eng.ns
@@ -562,17 +565,21 @@ class FaultMonitor:
         self.flagged_only.discard(int(gyro))
 
     def wake_time(self) -> float:
-        """Engine time from which :meth:`on_window` has work (−inf during an alarm): the engine's
-        compiled fast path skips the hook before it (radical_rt.fastpath)."""
-        return -math.inf if self.state == "alarm" else self._next_check
+        """Engine time from which :meth:`on_window` has work (−inf during an alarm or after a
+        parity sum): the engine's compiled fast path skips the hook before it
+        (radical_rt.fastpath)."""
+        return -math.inf if self.state == "alarm" or self._sum_seen else self._next_check
 
     def on_window(self, eng, t: float) -> None:
         """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
-        an alarm the bookkeeping runs once per second of engine time (it only watches for
-        restarts, exclusions and the snapshot period)."""
-        if self.state != "alarm" and eng.t < self._next_check:
+        an alarm the bookkeeping (it only watches for restarts, exclusions and the snapshot
+        period) runs at the window close of each parity sum (1 s by default; the engine's
+        compiled path stops there anyway), and at the latest CHECK_MAX_S of engine time after
+        the last one (no sums: three gyros, FDI disabled, invalid samples)."""
+        if self.state != "alarm" and not self._sum_seen and eng.t < self._next_check:
             return
-        self._next_check = eng.t + CHECK_PERIOD_S
+        self._sum_seen = False
+        self._next_check = eng.t + CHECK_MAX_S
         self._check_gen(eng)
         self._sync_failed_flags(eng)
         if not self.enabled(eng):

@@ -261,3 +261,35 @@ def test_disabled_monitor_stays_silent(short_fault):
     table.set({"fdi_enabled": False})
     s = process([str(short_fault)], None, table=table)
     assert not {"PARITY_ALARM", "GYRO_B_FAILED"} & set(s["flags"]) and s["mode"] != "degraded"
+
+
+def test_bookkeeping_runs_at_each_parity_sum_and_at_least_every_check_max(short_fault, monkeypatch):
+    """Outside an alarm the monitor's bookkeeping runs at the window close of each parity sum
+    (where the compiled path hands over anyway) and, with no sums (three gyros after the
+    isolation), every CHECK_MAX_S of engine time."""
+    from radical_rt.fdi import CHECK_MAX_S, FaultMonitor
+    runs, sums = [], []
+    orig_gen, orig_sum = FaultMonitor._check_gen, FaultMonitor.on_parity_sum
+
+    def check_gen(self, eng):
+        runs.append((float(eng.t), self.state))
+        return orig_gen(self, eng)
+
+    def on_sum(self, eng, *a):
+        sums.append(float(eng.t))
+        return orig_sum(self, eng, *a)
+
+    monkeypatch.setattr(FaultMonitor, "_check_gen", check_gen)
+    monkeypatch.setattr(FaultMonitor, "on_parity_sum", on_sum)
+    s = process([str(short_fault)], None)
+    assert "GYRO_B_FAILED" in s["flags"]
+    t_run = np.array([t for t, _ in runs])
+    assert np.diff(t_run).max() <= CHECK_MAX_S + 0.1 + 1e-9  # one window of slack
+    # before the fault: one bookkeeping per sum, at the sum's own window close
+    early = [t for t in sums if t < 1100.0]
+    assert len(early) > 80
+    assert all(np.min(np.abs(t_run - t)) < 1e-9 for t in early)
+    assert sum(1 for t in t_run if t < 1100.0) <= len(early) + 2
+    # three gyros (no sums) after the isolation: the 2-s cadence
+    three = [t for t, st in runs if st == "three-gyro"]
+    assert len(three) > 20 and np.median(np.diff(three)) == pytest.approx(CHECK_MAX_S, abs=0.11)
