@@ -48,6 +48,7 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
+from .fdi import _append_rows
 from .flags import Flag
 from .model import fold_correction, tracker_rows
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
@@ -252,7 +253,7 @@ def unpack(fb, ib, bb, lay):
 
 @kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
-                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i):
+                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -261,7 +262,12 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     consider)
     for Python's bookkeeping. Returns (reason, next sample, event, stage): R_DONE with event ==
     n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
-    before z when e == n_ev), 1 for a reason of tracker event e itself."""
+    before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
+    samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
+    (radical_rt.fdi._SampleBuffer, room already made; its owner advances its end), as the
+    reference path's on_gyro hook does before the engine runs."""
+    if g_end >= 0:
+        _append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
     while e < n_ev:

@@ -39,13 +39,23 @@ class FastRelease:
         """One release of the stream processor: for each tracker event (j, t_epoch, q_meas,
         n_stars, valid) in epoch order, the gyro samples up to its epoch, then the sample; then
         the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
-        (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`; the caller has given them to the
-        FDI hook). The same as the reference calls, run by :func:`fastpath.fast_release` while it
+        (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`), first given to the FDI's
+        history (:meth:`radical_rt.fdi.FaultMonitor.on_gyro_rows`, or the kernel's own copy).
+        The same as the reference calls, run by :func:`fastpath.fast_release` while it
         applies."""
         n_ev = len(events)
-        if not self.fast:
+        fdi = self.fdi
+        if not (self.fast and self.att_valid):
+            if fdi is not None and z > a:
+                fdi.on_gyro_rows(arrays, a, z)
             self._release_ref(arrays, a, z, events)
             return
+        if fdi is not None and z > a:  # the kernel's first call copies a..z−1 to the history
+            gbuf = fdi.gbuf
+            gbuf.reserve(z - a, self.n_gyro)
+            g_f, g_i, g_b, g_end = gbuf._f, gbuf._i, gbuf._b, gbuf.end
+        else:
+            g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
         ev_f, ev_i, evo_f, evo_i = self._event_buffers(n_ev)
         for i, (j, epoch, q, n_stars, valid) in enumerate(events):
             ev_f[i, 0] = epoch
@@ -62,7 +72,11 @@ class FastRelease:
             self._fast_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
-                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i)
+                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
+                g_f, g_i, g_b, g_end)
+            if g_end >= 0:
+                gbuf.end += z - a
+                g_end = -1
             # _fast_end: the scalar state back from the io arrays
             self.t, self.locked_since = io[:2].tolist()
             self.flags, used, undetermined, masked = cnt[:4].tolist()
@@ -95,7 +109,7 @@ class FastRelease:
                     k = seg
 
     def _release_ref(self, arrays, a: int, z: int, events) -> None:
-        """The reference path of :meth:`release` (FDI hook already called by the stream)."""
+        """The reference path of :meth:`release` (the FDI history already has the samples)."""
         t = arrays[0]
         k = a
         for ev in events:
@@ -117,6 +131,8 @@ class FastRelease:
         return bufs
 
     _ev_bufs: tuple[np.ndarray, ...] | None = None
+    # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
+    _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
 
     def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
         """The reference path's bookkeeping of a valid tracker event the fast path took: last

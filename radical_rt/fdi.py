@@ -229,11 +229,16 @@ class _SampleBuffer:
         m = z - a
         if m <= 0:
             return
-        if self._f.shape[1] != self._COLS + dth.shape[1] or self.end + m > len(self._i):
-            self._make_room(m, dth.shape[1])
+        self.reserve(m, dth.shape[1])
         _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged,
                      a, z)
         self.end += m
+
+    def reserve(self, m: int, n: int) -> None:
+        """Room for m more samples of n gyros after ``end`` (the compiled release appends them
+        itself with :func:`_append_rows`, then advances ``end``)."""
+        if self._f.shape[1] != self._COLS + n or self.end + m > len(self._i):
+            self._make_room(m, n)
 
     def _make_room(self, m: int, n: int) -> None:
         """Move the kept samples to the front; grow (×2) if they and m more do not fit."""

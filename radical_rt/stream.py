@@ -156,8 +156,6 @@ class StreamProcessor:
         gq.head = z  # taken before the engine runs
         arrays = gq.arrays()
         if z > a:
-            if e.fdi is not None:
-                e.fdi.on_gyro_rows(arrays, a, z)
             self.released_t = max(self.released_t, float(gq.t[z - 1]))
         e.release(arrays, a, z, events)
 
