@@ -211,7 +211,7 @@ class SiruClock:
         batch). t_bus (k,) float64, tt (k,) int64, dtheta (k, n) float64, status (k,) int64, all
         C-contiguous (as :func:`radical_rt.packets.decode_siru` returns them). Returns the number of
         samples appended; ``last_tt`` holds their tags."""
-        self._sig_cache = None
+        self._sig_cache = self._anom_cache = None
         k = t_bus.shape[0]
         self._out_room(k)
         bound = k * (int(self.config.max_bridge) + 1)
@@ -248,7 +248,7 @@ class SiruClock:
     def reset(self) -> None:
         """Stream discontinuity: forget the sequence and the phase, keep the frequency range and
         the counters. A held-back read is dropped (call :meth:`flush` first to keep it)."""
-        self._sig_cache = None
+        self._sig_cache = self._anom_cache = None
         ist, fst = self._I, self._F
         ist[L.I_HAVE_A] = 0
         ist[L.I_HAVE_P] = 0
@@ -261,7 +261,7 @@ class SiruClock:
         fst[L.F_Y_HI] = min(fst[L.F_Y_HI] + dy, fst[L.P_Y_HI])
 
     def _run(self, t_bus, tt, dtheta, status, final: bool) -> GyroBatch:
-        self._sig_cache = None
+        self._sig_cache = self._anom_cache = None
         t_bus = np.ascontiguousarray(t_bus, dtype=np.float64).reshape(-1)
         tt = np.ascontiguousarray(tt, dtype=np.int64).reshape(-1)
         k = t_bus.shape[0]
@@ -323,8 +323,14 @@ class SiruClock:
 
     @property
     def anomaly(self) -> bool:
-        """CLOCK_ANOMALY: raised for ``anomaly_hold_s`` of bus time after each anomaly event."""
-        return bool(self._F[L.F_TAU_NOW] < self._F[L.F_ANOM_UNTIL])
+        """CLOCK_ANOMALY: raised for ``anomaly_hold_s`` of bus time after each anomaly event
+        (cached like :attr:`tag_error_sigma_s`; read with every flags evaluation)."""
+        a = self._anom_cache
+        if a is None:
+            a = self._anom_cache = bool(self._F[L.F_TAU_NOW] < self._F[L.F_ANOM_UNTIL])
+        return a
+
+    _anom_cache: bool | None = None
 
     @property
     def locked(self) -> bool:
@@ -382,7 +388,7 @@ class SiruClock:
 
     def set_state(self, state: dict) -> None:
         """Restore a :meth:`get_state` checkpoint (configuration included)."""
-        self._sig_cache = None
+        self._sig_cache = self._anom_cache = None
         if state.get("schema") != STATE_SCHEMA:
             raise ValueError(f"unknown clock state schema {state.get('schema')!r}")
         config = ClockConfig(**state["config"])
