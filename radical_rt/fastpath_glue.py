@@ -41,9 +41,9 @@ class FastRelease:
         the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
         (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`), first given to the FDI's
         history (:meth:`radical_rt.fdi.FaultMonitor.on_gyro_rows`, or the kernel's own copy).
-        The same as the reference calls, run by :func:`fastpath.fast_release` while it
-        applies."""
-        n_ev = len(events)
+        events: a :class:`radical_rt.tracker_queue.EventBlock` (rows of the stream's tracker
+        queue, which the kernel reads in place). The same as the reference calls, run by
+        :func:`fastpath.fast_release` while it applies."""
         fdi = self.fdi
         if not (self.fast and self.att_valid):
             if fdi is not None and z > a:
@@ -56,18 +56,15 @@ class FastRelease:
             g_f, g_i, g_b, g_end = gbuf._f, gbuf._i, gbuf._b, gbuf.end
         else:
             g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
-        ev_f, ev_i, evo_f, evo_i = self._event_buffers(n_ev)
-        for i, (j, epoch, q, n_stars, valid) in enumerate(events):
-            ev_f[i, 0] = epoch
-            ev_f[i, 1:5] = q
-            ev_i[i] = j, n_stars, valid
+        ev_f, ev_i, evo_f, evo_i = events.f, events.i, events.out_f, events.out_i
+        n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
         io, cnt, run = self._fast_io, self._fast_cnt, fp.fast_release
-        k, e = a, 0
+        k, e = a, events.start
         while k < z or e < n_ev:
             if not self.att_valid:
-                self._release_ref(arrays, k, z, events[e:])
+                self._release_ref(arrays, k, z, events.after(e))
                 return
             self._fast_begin()
             reason, k, e_stop, stage = run(
@@ -89,16 +86,16 @@ class FastRelease:
             if e_stop > e:  # events the kernel completed
                 rows_f, rows_i = evo_f[e:e_stop].copy(), evo_i[e:e_stop].tolist()
                 for i in range(e, e_stop):
-                    self._tracker_bookkeeping(events[i], rows_f[i - e], rows_i[i - e])
+                    self._tracker_bookkeeping(events.event(i), rows_f[i - e], rows_i[i - e])
             e = e_stop
             if stage == 1:
-                self._tracker_done(reason, events[e], evo_f[e].copy(), evo_i[e].tolist())
+                self._tracker_done(reason, events.event(e), evo_f[e].copy(), evo_i[e].tolist())
                 e += 1
                 continue
             if reason == fp.R_DONE:
                 continue
             # the reference path to the next event (or to z); the kernel then takes the event
-            seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], events[e][1], side="right"))
+            seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], ev_f[e, 0], side="right"))
             if reason == fp.R_SLOW:  # a gap at sample k
                 self._gyro_body(*_span(arrays, k, seg), 0)
                 k = seg
@@ -121,16 +118,6 @@ class FastRelease:
         if z > k:
             self._gyro_body(*_span(arrays, k, z), 0)
 
-    def _event_buffers(self, n: int) -> tuple[np.ndarray, ...]:
-        """Tracker event buffers of fastpath.fast_release for n events (grown as needed)."""
-        bufs = self._ev_bufs
-        if bufs is None or bufs[0].shape[0] < n:
-            m = max(n, 8)
-            bufs = self._ev_bufs = (np.zeros((m, 5)), np.zeros((m, 3), np.int64),
-                                    np.zeros((m, 7)), np.zeros((m, 4), np.int64))
-        return bufs
-
-    _ev_bufs: tuple[np.ndarray, ...] | None = None
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
 

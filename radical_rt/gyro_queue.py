@@ -29,7 +29,6 @@ class GyroQueue:
         self.n_gyro = n_gyro
         self._alloc(capacity)
         self.head = self.end = 0
-        self._memo: tuple[int, float, float, int] | None = None  # upto's last answer
 
     def _alloc(self, cap: int) -> None:
         self.t, self.dt, self.var_extra = np.empty(cap), np.empty(cap), np.empty(cap)
@@ -42,7 +41,6 @@ class GyroQueue:
 
     def clear(self) -> None:
         self.head = self.end = 0
-        self._memo = None
 
     def push(self, b: GyroBatch) -> None:
         """Append a batch of samples (later than the pending ones)."""
@@ -70,31 +68,10 @@ class GyroQueue:
         for dst, a in zip(self.arrays(), old, strict=True):
             dst[:keep] = a[src]  # copies (overlapping moves are safe with numpy assignment)
         self.head, self.end = 0, keep
-        self._memo = None  # indices moved
 
     def arrays(self) -> tuple[np.ndarray, ...]:
         """The whole arrays (t, dt, dtheta, status, bridged, var_extra): index with head..end."""
         return self.t, self.dt, self.dtheta, self.status, self.bridged, self.var_extra
-
-    def upto(self, t_max: float) -> int:
-        """End index of the pending samples with t ≤ t_max. The last answer z is kept with the
-        interval [t[z−1], t[z]) of t_max that gives it (the tracker messages between two SIRU
-        batches ask with a watermark that has barely moved); it stays valid while no sample is
-        appended after z = end and the head has not passed z."""
-        m = self._memo
-        if m is not None:
-            z, lo, hi, end = m
-            if lo <= t_max < hi and z >= self.head and (z < end or end == self.end):
-                return z
-        a, b = self.head, self.end
-        if b == a or self.t[b - 1] <= t_max:
-            z = b
-        else:
-            z = a + int(self.t[a:b].searchsorted(t_max, side="right"))
-        lo = float(self.t[z - 1]) if z > a else -math.inf
-        hi = float(self.t[z]) if z < b else math.inf
-        self._memo = (z, lo, hi, b)
-        return z
 
 
 @kernel

@@ -33,8 +33,6 @@ from .packets import MAX_SIRU_BATCH
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
 # k_needed < 0 below FALLBACK: −(2 + k) asks for column buffers of k rows
 
-_K_V, _K_T, _K_TT, _K_DTH, _K_ST = 1, 2, 4, 8, 16
-_KEY_BYTES = {b"v": _K_V, b"t_bus": _K_T, b"tt": _K_TT, b"dtheta": _K_DTH, b"status": _K_ST}
 
 
 @kernel
@@ -106,7 +104,8 @@ def _integer(buf, p, n):
 
 @kernel
 def _key(buf, p, n):
-    """A str key at p: (key bit _K_*, or 0 for any other key / −1 if not a str, next position)."""
+    """A str key at p: (1 v, 2 t_bus, 4 tt, 8 dtheta, 16 status; 0 any other key, −1 not a str;
+    next position)."""
     if p >= n:
         return -1, p
     b = buf[p]

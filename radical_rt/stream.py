@@ -15,7 +15,6 @@ time of one message, not the tracker latency.
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections import defaultdict
 from typing import Any
@@ -29,6 +28,23 @@ from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .siru_wire import SiruWire
 from .telemetry import PacketSpec, build, default_packets, read_field
+from .tracker_queue import (
+    IN_BACKWARDS,
+    IN_DUPLICATE,
+    IN_FALLBACK,
+    IN_FULL,
+    IN_RELEASE,
+    PLAN_GO,
+    SI_LATE,
+    SS_LAST,
+    SS_RELEASED,
+    SS_T_IN,
+    SS_T_MAX,
+    TrackerQueue,
+    release_plan,
+    tracker_accept,
+    tracker_intake,
+)
 
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
@@ -46,7 +62,7 @@ class StreamProcessor:
         self.reorder_slack_s, self.reject_hold_s = reorder_slack_s, reject_hold_s
         self.diag = PacketSpec("diag", [], period_s=diag_period_s)
         self.rejected: dict[str, int] = defaultdict(int)
-        self.late_dropped = 0
+        self._tq = TrackerQueue()  # waiting tracker samples and the shared stream times
         self.temps: dict[str, float] = {}
         self.last_reject_t = -math.inf
         self._out: list[tuple[str, dict[str, Any]]] = []
@@ -61,35 +77,44 @@ class StreamProcessor:
 
     # ---------------------------------------------------------------- input side
     def _begin_stream(self) -> None:
-        self.t_max = -math.inf
-        self.last_t: dict[str, float] = {}
-        self.released_t = -math.inf
+        self._tq.clear()  # t_max, released_t and the trackers' last times: −inf
+        self.last_t: dict[str, float] = {}  # siru, temp (the trackers' are in the queue's ss)
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
         self._new_sample = False
         self._gq.clear()
-        self._trk: list[tuple[float, int, int, np.ndarray, int, bool]] = []
-        self._seq = 0
+
+    # newest t_bus of any input [s]; epoch up to which samples count as released [s]; late
+    # tracker samples dropped (shared with the compiled intake, radical_rt.tracker_queue)
+    t_max = property(lambda self: float(self._tq.ss[SS_T_MAX]),
+                     lambda self, v: self._tq.ss.__setitem__(SS_T_MAX, v))
+    released_t = property(lambda self: float(self._tq.ss[SS_RELEASED]),
+                          lambda self, v: self._tq.ss.__setitem__(SS_RELEASED, v))
+    late_dropped = property(lambda self: int(self._tq.si[SI_LATE]),
+                            lambda self, v: self._tq.si.__setitem__(SI_LATE, v))
 
     def feed(self, topic: str, payload: bytes | dict) -> list[tuple[str, dict[str, Any]]]:
         """Take one input message (topic without the leading slash); return outputs produced."""
+        released = False
         try:
             if topic not in INPUT_TOPICS:
                 raise InputError("unknown_topic", f"unknown input topic {topic!r}")
-            cols = self._wire.decode(payload) if topic == "siru" and isinstance(
-                payload, (bytes, bytearray, memoryview)) else None
-            msg = unpack(payload) if cols is None else None
             if topic == "siru":
-                self._feed_siru(decode_siru(msg, self.engine.n_gyro) if cols is None else cols)
+                cols = self._wire.decode(payload) if isinstance(
+                    payload, (bytes, bytearray, memoryview)) else None
+                if cols is None:
+                    cols = decode_siru(unpack(payload), self.engine.n_gyro)
+                self._feed_siru(cols)
             elif topic == "temp":
-                t, values = decode_temp(msg)
+                t, values = decode_temp(unpack(payload))
                 self._check_time(topic, t)
                 self.temps.update(values)
             else:
-                self._feed_tracker(topic, msg)
+                released = self._feed_tracker(topic, payload)
         except InputError as exc:
             self._reject(topic, exc)
-        self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
-                      defer=topic != "siru")
+        if not released:
+            self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
+                          defer=topic != "siru")
         if self._new_sample:
             self._new_sample = False
             self._sample_outputs()
@@ -116,15 +141,35 @@ class StreamProcessor:
             self.t_now = float(gq.t[gq.end - 1])
             self._new_sample = True
 
-    def _feed_tracker(self, topic: str, msg: dict) -> None:
-        t, q, n_stars, valid = decode_tracker(msg)
-        self._check_time(topic, t)
-        epoch = t - self.engine.si.latency_st_s
-        if epoch < self.released_t:
-            self.late_dropped += 1
-            return
-        self._seq += 1
-        heapq.heappush(self._trk, (epoch, 1 if topic == "st1" else 2, self._seq, q, n_stars, valid))
+    def _feed_tracker(self, topic: str, payload) -> bool:
+        """A tracker message: decoded, checked and queued in release order by one kernel call
+        (:func:`radical_rt.tracker_queue.tracker_intake`; any other layout through msgpack and
+        :func:`radical_rt.packets.decode_tracker`), with the stream's release test. Returns
+        whether that test is done (the caller's deferred release then has nothing to do)."""
+        j = 1 if topic == "st1" else 2
+        e, gq, tq = self.engine, self._gq, self._tq
+        si = e.si
+        while True:
+            args = (j, si.latency_st_s, self.reorder_slack_s, tq.ss, tq.si, tq.ev_f, tq.ev_i,
+                    gq.t, gq.head, gq.end, int(e.acc_i[0]), si.prop_window)
+            code = IN_FALLBACK
+            if isinstance(payload, (bytes, bytearray, memoryview)):
+                code = tracker_intake(np.frombuffer(payload, np.uint8), *args, tq.q_work)
+            if code == IN_FALLBACK:
+                t, q, n_stars, valid = decode_tracker(unpack(payload))
+                code = tracker_accept(t, q, n_stars, valid, *args)
+            if code != IN_FULL:
+                break
+            tq.grow()
+        if code == IN_DUPLICATE or code == IN_BACKWARDS:
+            t, last = float(tq.ss[SS_T_IN]), float(tq.ss[SS_LAST + j])
+            if code == IN_DUPLICATE:
+                raise InputError("duplicate",
+                                 f"{topic} sample at t_bus={t} repeats the previous one")
+            raise InputError("time_backwards", f"{topic} t_bus={t} is before the previous {last}")
+        if code == IN_RELEASE:
+            self._release(self.t_max - si.latency_st_s - self.reorder_slack_s, defer=True)
+        return True
 
     def _reject(self, topic: str, exc: InputError) -> None:
         self.rejected[exc.reason] += 1
@@ -141,23 +186,14 @@ class StreamProcessor:
         late-tracker test). Nothing observable happens in such a release — no window closes, so
         no output — and the next release processes the same events in the same order; the
         stream defers on tracker and temperature messages, never before sample outputs."""
-        events = []
-        while self._trk and self._trk[0][0] <= watermark:
-            epoch, j, _seq, q, n_stars, valid = heapq.heappop(self._trk)
-            events.append((j, epoch, q, n_stars, valid))
-            self.released_t = max(self.released_t, epoch)
-        gq, e = self._gq, self.engine
-        a, z = gq.head, gq.upto(watermark)
-        if z == a and not events:
-            return
-        if defer and not events and e.acc_i[0] + (z - a) < e.si.prop_window:
-            self.released_t = max(self.released_t, float(gq.t[z - 1]))
+        gq, e, tq = self._gq, self.engine, self._tq
+        a = gq.head
+        plan, e1, z = release_plan(tq.ss, tq.si, tq.ev_f, gq.t, a, gq.end, watermark,
+                                   int(e.acc_i[0]), e.si.prop_window, defer)
+        if plan != PLAN_GO:
             return
         gq.head = z  # taken before the engine runs
-        arrays = gq.arrays()
-        if z > a:
-            self.released_t = max(self.released_t, float(gq.t[z - 1]))
-        e.release(arrays, a, z, events)
+        e.release(gq.arrays(), a, z, tq.block(e1))
 
     def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
         """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""

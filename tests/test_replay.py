@@ -216,10 +216,12 @@ class _StoppingLog(list):
     def __init__(self, stop: threading.Event, after: int) -> None:
         super().__init__()
         self.stop, self.after = stop, after
+        self.t_set = None  # time.monotonic() when the event was set
 
     def append(self, item) -> None:
         super().append(item)
-        if len(self) >= self.after:
+        if len(self) >= self.after and not self.stop.is_set():
+            self.t_set = time.monotonic()
             self.stop.set()
 
 
@@ -227,13 +229,13 @@ def test_fake_bus_stop_event(archives):
     """Setting the stop event mid-stream ends a paced replay promptly, counting what went out."""
     s, stop = FakeSession(), threading.Event()
     s.log = _StoppingLog(stop, after=20)
-    t_stop = [0.0]
-    threading.Thread(target=lambda: (stop.wait(30), t_stop.__setitem__(0, time.monotonic())),
-                     daemon=True).start()
     res = replay(archives["a"], VEH, s, rate=1.0, stop_event=stop)
+    t_return = time.monotonic()
     assert res["stopped"] and 20 <= res["messages"] <= 21, res["messages"]
     assert res["messages"] == len(s.log) < len(_order(archives["a"]))
-    assert time.monotonic() - t_stop[0] < 1.0  # prompt, with a wide margin
+    # prompt, with a wide margin (the time is taken where the event is set: a helper thread that
+    # noted it could be scheduled after the replay returned, as it once was on a loaded machine)
+    assert s.log.t_set is not None and t_return - s.log.t_set < 1.0
 
 
 def _not_mcap(tmp_path: Path) -> Path:

@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from radical_rt.filter import Engine
 from radical_rt.packets import InputError, decode_siru, unpack
 from radical_rt.siru_wire import SiruWire
 from radical_rt.stream import StreamProcessor
-from radical_rt.filter import Engine
 
 KEYS = ("v", "t_bus", "tt", "dtheta", "status")
 
