@@ -45,6 +45,9 @@ from radical_rt.clock_kernels import (
     tag_sigma,
 )
 from radical_rt.clock_timing import pending_read
+from radical_rt.conventions import SIRU_TT_WRAP
+from radical_rt.packets import MAX_SIRU_BATCH
+from radical_rt.siru_wire import WIRE_GROW, WIRE_OK, siru_intake
 
 #: counters exposed by :attr:`SiruClock.counters` (the first seven are the interface's)
 COUNTER_NAMES = ("samples", "repeated", "missing", "bridged", "anomalies", "wraps", "resets",
@@ -224,6 +227,34 @@ class SiruClock:
         queue.end += m
         self._n_tags = m
         return m
+
+    def intake(self, wire, payload, queue, ss, i_last: int, i_tmax: int) -> tuple[int, int, int]:
+        """A plain ``siru`` message straight from its bytes: decoding, the stream's time check
+        and :meth:`push_into`, in one kernel call (:func:`radical_rt.siru_wire.siru_intake`;
+        ``wire``: its :class:`~radical_rt.siru_wire.SiruWire` buffers; ss, i_last, i_tmax: the
+        stream's times). Returns (WIRE_* status, batch length, samples appended); on any status
+        but WIRE_OK nothing has changed."""
+        buf = np.frombuffer(payload, np.uint8)
+        while True:
+            cap = wire.capacity
+            self._out_room(cap)
+            bound = cap * (int(self.config.max_bridge) + 1)
+            queue.reserve(bound)
+            if self._tags.shape[0] < bound:
+                self._tags = np.empty(bound + bound // 4, np.int64)
+            status, k, m = siru_intake(
+                buf, self.n_gyro, wire.t_bus, wire.tt, wire.dtheta, wire.status, MAX_SIRU_BATCH,
+                SIRU_TT_WRAP, ss, i_last, i_tmax, self._I, self._F, _CHUNK, self._of, self._oi,
+                queue.end, queue.t, queue.dt, queue.dtheta, queue.status, queue.bridged,
+                queue.var_extra, self._tags)
+            if status != WIRE_GROW:
+                break
+            wire.grow(k)
+        if status == WIRE_OK:
+            self._sig_cache = self._anom_cache = None
+            queue.end += m
+            self._n_tags = m
+        return status, k, m
 
     _tags = np.empty(0, np.int64)
     _n_tags = 0

@@ -27,10 +27,13 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
+from .clock_kernels import clock_push_rows
 from .conventions import SIRU_TT_WRAP
 from .packets import MAX_SIRU_BATCH
 
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
+# siru_intake statuses
+WIRE_OK, WIRE_FALLBACK, WIRE_GROW, WIRE_DUPLICATE, WIRE_BACKWARDS = 0, 1, 2, 3, 4
 # k_needed < 0 below FALLBACK: −(2 + k) asks for column buffers of k rows
 
 
@@ -205,6 +208,34 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
     return k
 
 
+@kernel
+def siru_intake(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap, ss, i_last, i_tmax, I, F,
+                chunk, OF, OI, end, q_t, q_dt, q_dth, q_st, q_br, q_ve, tags):
+    """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, the
+    stream's time check (ss[i_last]: the last t_bus of the previous batch [s]; the first sample
+    of this one must be later), ss[i_last] and the newest time ss[i_tmax] updated, then the
+    SIRU clock (state I, F) and the append of the released samples to the gyro queue arrays
+    q_* from row end (:func:`radical_rt.clock_kernels.clock_push_rows`; the caller has made room
+    for len(t_bus)·(max_bridge + 1) rows). Returns (WIRE_*, k, rows appended): WIRE_FALLBACK —
+    not the plain layout (nothing changed); WIRE_GROW — the column buffers need k rows;
+    WIRE_DUPLICATE / WIRE_BACKWARDS — refused by the time check (nothing changed)."""
+    k = parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap)
+    if k == FALLBACK:
+        return WIRE_FALLBACK, 0, 0
+    if k < 0:
+        return WIRE_GROW, -k - 2, 0
+    last = ss[i_last]
+    if t_bus[0] == last:
+        return WIRE_DUPLICATE, k, 0
+    if t_bus[0] < last:
+        return WIRE_BACKWARDS, k, 0
+    ss[i_last] = t_bus[k - 1]
+    ss[i_tmax] = max(ss[i_tmax], t_bus[k - 1])
+    m = clock_push_rows(I, F, t_bus[:k], tt[:k], dtheta[:k], status[:k], chunk, OF, OI, end, q_t,
+                        q_dt, q_dth, q_st, q_br, q_ve, tags)
+    return WIRE_OK, k, m
+
+
 class SiruWire:
     """Column buffers and scratch of :func:`parse_siru` for one stream (reused, grown on demand)."""
 
@@ -213,6 +244,7 @@ class SiruWire:
         self._alloc(capacity)
 
     def _alloc(self, cap: int) -> None:
+        self.capacity = cap
         self.t_bus, self.tt = np.empty(cap), np.empty(cap, np.int64)
         self.dtheta, self.status = np.empty((cap, self.n_gyro)), np.empty(cap, np.int64)
 
@@ -228,3 +260,7 @@ class SiruWire:
             if k == FALLBACK:
                 return None
             self._alloc(-k - 2)
+
+    def grow(self, k: int) -> None:
+        """Column buffers for k rows (after WIRE_GROW)."""
+        self._alloc(k)

@@ -26,7 +26,7 @@ from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .siru_wire import SiruWire
+from .siru_wire import WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, WIRE_OK, SiruWire
 from .telemetry import PacketSpec, build, default_packets, read_field
 from .tracker_queue import (
     IN_BACKWARDS,
@@ -37,6 +37,7 @@ from .tracker_queue import (
     PLAN_GO,
     SI_LATE,
     SS_LAST,
+    SS_LAST_SIRU,
     SS_RELEASED,
     SS_T_IN,
     SS_T_MAX,
@@ -78,7 +79,7 @@ class StreamProcessor:
     # ---------------------------------------------------------------- input side
     def _begin_stream(self) -> None:
         self._tq.clear()  # t_max, released_t and the trackers' last times: −inf
-        self.last_t: dict[str, float] = {}  # siru, temp (the trackers' are in the queue's ss)
+        self.last_t: dict[str, float] = {}  # temp (siru's and the trackers' are in the queue's ss)
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
         self._new_sample = False
         self._gq.clear()
@@ -99,11 +100,7 @@ class StreamProcessor:
             if topic not in INPUT_TOPICS:
                 raise InputError("unknown_topic", f"unknown input topic {topic!r}")
             if topic == "siru":
-                cols = self._wire.decode(payload) if isinstance(
-                    payload, (bytes, bytearray, memoryview)) else None
-                if cols is None:
-                    cols = decode_siru(unpack(payload), self.engine.n_gyro)
-                self._feed_siru(cols)
+                self._feed_siru(payload)
             elif topic == "temp":
                 t, values = decode_temp(unpack(payload))
                 self._check_time(topic, t)
@@ -129,15 +126,30 @@ class StreamProcessor:
         self.last_t[topic] = t
         self.t_max = max(self.t_max, t)
 
-    def _feed_siru(self, cols) -> None:
-        """cols: (t_bus (k,) [s], tt (k,) int64, dtheta (k, n) [rad], status (k,) int64), as
-        :func:`radical_rt.packets.decode_siru` returns them."""
-        t_bus, tt, dth, status = cols
-        self._check_time("siru", float(t_bus[0]))
-        self.last_t["siru"] = float(t_bus[-1])
-        self.t_max = max(self.t_max, float(t_bus[-1]))
-        gq = self._gq
-        if self.clock.push_into(gq, t_bus, tt, dth, status):
+    def _feed_siru(self, payload) -> None:
+        """A siru message: decoded, time-checked and pushed through the clock into the gyro
+        queue by one kernel call (:meth:`radical_rt.clock.SiruClock.intake`); any other layout
+        through msgpack and :func:`radical_rt.packets.decode_siru`, then the same steps."""
+        ss, gq = self._tq.ss, self._gq
+        status = WIRE_FALLBACK
+        if isinstance(payload, (bytes, bytearray, memoryview)):
+            status, _k, m = self.clock.intake(self._wire, payload, gq, ss, SS_LAST_SIRU,
+                                              SS_T_MAX)
+            t0 = float(self._wire.t_bus[0])
+        if status == WIRE_FALLBACK:
+            t_bus, tt, dth, st = decode_siru(unpack(payload), self.engine.n_gyro)
+            t0, last = float(t_bus[0]), float(ss[SS_LAST_SIRU])
+            status = WIRE_DUPLICATE if t0 == last else WIRE_BACKWARDS if t0 < last else WIRE_OK
+            if status == WIRE_OK:
+                ss[SS_LAST_SIRU] = t_bus[-1]
+                ss[SS_T_MAX] = max(ss[SS_T_MAX], t_bus[-1])
+                m = self.clock.push_into(gq, t_bus, tt, dth, st)
+        if status == WIRE_DUPLICATE:
+            raise InputError("duplicate", f"siru sample at t_bus={t0} repeats the previous one")
+        if status == WIRE_BACKWARDS:
+            raise InputError("time_backwards",
+                             f"siru t_bus={t0} is before the previous {float(ss[SS_LAST_SIRU])}")
+        if m:
             self.t_now = float(gq.t[gq.end - 1])
             self._new_sample = True
 

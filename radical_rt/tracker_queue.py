@@ -13,9 +13,11 @@ arithmetic), so the event sequence the engine sees is unchanged.
 
 Shared state (owned by the stream processor):
 
-* ``ss`` float64 (5,): ``SS_T_MAX`` (newest t_bus of any input [s]), ``SS_RELEASED`` (epoch up to
-  which samples count as released [s]), ``SS_LAST + j`` (last t_bus of tracker j = 1, 2),
-  ``SS_T_IN`` (t_bus of the last tracker sample taken in or refused, for the diagnostics).
+* ``ss`` float64 (6,), the stream's times: ``SS_T_MAX`` (newest t_bus of any input [s]),
+  ``SS_RELEASED`` (epoch up to which samples count as released [s]), ``SS_LAST + j`` (last t_bus
+  of tracker j = 1, 2), ``SS_T_IN`` (t_bus of the last tracker sample taken in or refused, for
+  the diagnostics), ``SS_LAST_SIRU`` (last t_bus of the previous siru batch; the compiled siru
+  intake, :func:`radical_rt.siru_wire.siru_intake`, checks and updates it).
 * ``si`` int64 (4,): ``SI_LATE`` (late samples dropped), ``SI_SEQ`` (arrival counter),
   ``SI_HEAD``, ``SI_END`` (the waiting rows are head..end−1).
 * rows: ``ev_f`` (cap, 5) epoch [s], q_st_from_inertial (4,); ``ev_i`` (cap, 4) tracker j,
@@ -30,7 +32,7 @@ from ._jit import kernel
 from .packets import QUAT_NORM_TOL
 from .siru_wire import _be, _integer
 
-SS_T_MAX, SS_RELEASED, SS_LAST, SS_T_IN = 0, 1, 1, 4  # tracker j's last t_bus: SS_LAST + j
+SS_T_MAX, SS_RELEASED, SS_LAST, SS_T_IN, SS_LAST_SIRU = 0, 1, 1, 4, 5  # tracker j: SS_LAST + j
 SI_LATE, SI_SEQ, SI_HEAD, SI_END = 0, 1, 2, 3
 
 # tracker_intake / tracker_accept results
@@ -256,7 +258,7 @@ class TrackerQueue:
     per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see fast_release)."""
 
     def __init__(self, capacity: int = 64) -> None:
-        self.ss = np.zeros(5)
+        self.ss = np.zeros(6)
         self.si = np.zeros(4, np.int64)
         self.q_work = np.zeros(4)
         self._alloc(capacity)

@@ -140,3 +140,27 @@ def test_deep_copy_continues_bit_identically(nominal):
         assert [msgpack.packb(m) for _, m in a] == [msgpack.packb(m) for _, m in b]
     assert np.array_equal(e.U, t.U) and np.array_equal(e.xp, t.xp)
     assert dict(e.counters) == dict(t.counters)
+
+
+def test_compiled_intake_equals_the_general_decoding(nominal, monkeypatch):
+    """The damaged stream fed as msgpack bytes (siru and tracker messages decoded, checked and
+    queued by the compiled intakes, radical_rt.siru_wire / tracker_queue) and as decoded maps
+    (msgpack, decode_siru / decode_tracker and the same checks): the same outputs byte for
+    byte, the same rejections, the same final state."""
+    from radical_rt import stream
+    msgs = damaged(nominal)
+    as_maps = [(t, ns, msgpack.unpackb(d) if d[:1] != b"\xc1" else d) for t, ns, d in msgs]
+    general = []
+    for name in ("decode_siru", "decode_tracker"):
+        f = getattr(stream, name)
+        monkeypatch.setattr(stream, name, lambda *a, f=f: (general.append(1), f(*a))[1])
+    out_b, sp_b = run(msgs, True)
+    n_general_bytes = len(general)
+    out_m, sp_m = run(as_maps, True)
+    assert n_general_bytes < 20 < len(general) - n_general_bytes  # the bytes took the kernels
+    assert out_b == out_m
+    assert dict(sp_b.rejected) == dict(sp_m.rejected) and sum(sp_b.rejected.values()) >= 5
+    assert {"duplicate", "time_backwards", "nonfinite"} <= set(sp_b.rejected)
+    assert sp_b.late_dropped == sp_m.late_dropped and sp_b.counters() == sp_m.counters()
+    for name in ("U", "d", "xp", "q"):
+        assert np.array_equal(getattr(sp_b.engine, name), getattr(sp_m.engine, name)), name
