@@ -84,9 +84,7 @@ class FastRelease:
             if masked >= 0:
                 self.masked = masked != 0
             if e_stop > e:  # events the kernel completed
-                rows_f, rows_i = evo_f[e:e_stop].copy(), evo_i[e:e_stop].tolist()
-                for i in range(e, e_stop):
-                    self._tracker_bookkeeping(events.event(i), rows_f[i - e], rows_i[i - e])
+                self._trackers_taken(events, e, e_stop)
             e = e_stop
             if stage == 1:
                 self._tracker_done(reason, events.event(e), evo_f[e].copy(), evo_i[e].tolist())
@@ -120,6 +118,29 @@ class FastRelease:
 
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
+
+    def _trackers_taken(self, events, e: int, e_stop: int) -> None:
+        """:meth:`_tracker_bookkeeping` of the rows e..e_stop−1 of an event block the kernel
+        completed, read from the block's arrays in one pass (no event tuples)."""
+        f = events.f
+        heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
+        outs_f, outs_i = events.out_f[e:e_stop].copy(), events.out_i[e:e_stop].tolist()
+        last, fdi, counters = self.last_valid_st, self.fdi, self.counters
+        for r, (j, n_stars, _valid, _seq) in enumerate(heads):
+            t_epoch = epochs[r]
+            last[j] = t_epoch
+            if fdi is not None:
+                fdi.on_tracker(j, t_epoch, f[e + r, 1:5].copy(), n_stars)
+            status, edited, updated, consider = outs_i[r]
+            if not updated:
+                continue
+            kind = _ST_KIND[j]
+            if consider:
+                counters[kind + "_consider"] += 1
+            if status:
+                self._check(status)
+            out_f = outs_f[r]
+            self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
 
     def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
         """The reference path's bookkeeping of a valid tracker event the fast path took: last

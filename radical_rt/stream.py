@@ -225,6 +225,7 @@ class StreamProcessor:
             for spec in self.packets.values():
                 spec.next_t = -math.inf
             self.diag.next_t = -math.inf
+            self._packet_wake = None
         return self.take_outputs()
 
     # ---------------------------------------------------------------- outputs
@@ -257,18 +258,41 @@ class StreamProcessor:
         (−inf: now). Earlier is always safe (the hook then finds nothing to do)."""
         if self.flags != self._last_flags:
             return -math.inf, -math.inf
-        wake_t = self.diag.next_t
-        for spec in self.packets.values():
-            if spec.trigger == "window":
-                if spec.decimation is not None:  # counts every window close
-                    return -math.inf, -math.inf
-                wake_t = min(wake_t, spec.next_t)
+        wake_t = self._packet_wake
+        if wake_t is None:
+            wake_t = self._packet_wake = self._next_packet_t()
         wake_e = math.inf
         if self._last_flags & _INPUT_REJECTED and self.t_max != self.last_reject_t:
             wake_e = self.last_reject_t + self.reject_hold_s - 1e-6  # the hold ends
         return wake_t, wake_e
 
+    def _next_packet_t(self) -> float:
+        """Event time of the next window packet or diag (−inf: a decimated packet, which counts
+        every window close)."""
+        wake_t = self.diag.next_t
+        for spec in self.packets.values():
+            if spec.trigger == "window":
+                if spec.decimation is not None:
+                    return -math.inf
+                wake_t = min(wake_t, spec.next_t)
+        return wake_t
+
+    # kept until the schedule can change: _on_window, end_stream, new packets
+    _packet_wake: float | None = None
+
+    @property
+    def packets(self) -> dict[str, PacketSpec]:
+        """The telemetry packets {small|medium|large: PacketSpec}; assign a new map to change them
+        (set_packets, checkpoint restore)."""
+        return self._packets
+
+    @packets.setter
+    def packets(self, specs: dict[str, PacketSpec]) -> None:
+        self._packets = specs
+        self._packet_wake = None
+
     def _on_window(self, t: float) -> None:
+        self._packet_wake = None  # the packets' due() below moves their schedule
         flags = self.flags
         if flags != self._last_flags:
             prev = self._last_flags or 0

@@ -164,3 +164,26 @@ def test_compiled_intake_equals_the_general_decoding(nominal, monkeypatch):
     assert sp_b.late_dropped == sp_m.late_dropped and sp_b.counters() == sp_m.counters()
     for name in ("U", "d", "xp", "q"):
         assert np.array_equal(getattr(sp_b.engine, name), getattr(sp_m.engine, name)), name
+
+
+def test_packet_change_mid_stream_is_bit_identical(nominal):
+    """New packets mid-stream (as set_packets does: a new map): the fast path's cached packet
+    schedule follows, so both paths emit the same packets, decimated ones included."""
+    from radical_rt.telemetry import parse_packets
+    half = len(nominal) // 2
+
+    def switched(fast: bool):
+        sp = make_processor(ParamTable())
+        sp.engine.fast = fast
+        out = []
+        for i, (topic, _ns, data) in enumerate(nominal):
+            if i == half:
+                sp.packets = parse_packets({"medium": {"decimation": 3},
+                                            "large": {"period_s": 0.5}})
+            out += [(t, msgpack.packb(m)) for t, m in sp.feed(topic, data)]
+        return out
+
+    out_fast, out_ref = switched(True), switched(False)
+    assert out_fast == out_ref
+    late = [t for t, _ in out_fast[len(out_fast) // 2:]]
+    assert late.count("tlm/medium") > 2 * late.count("tlm/large") > 0
