@@ -50,6 +50,7 @@ from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
 from .fdi import _append_rows
 from .flags import Flag
+from .gyro_queue import predict_pending
 from .model import fold_correction, tracker_rows
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .timeupdate import close_time_window
@@ -70,10 +71,10 @@ _IX = {(f"{owner}.{name}" if owner else name): i
        for i, (owner, name) in enumerate(EngineState._PACKED)}
 (_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _ACC_I, _ACC_F,
  _TH_ACC, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W, _VAR_W, _CONV_VAR,
- _KAPPA_LAST, _INNOV, _SIG) = (_IX[k] for k in (
+ _KAPPA_LAST, _INNOV, _SIG, _OMEGA) = (_IX[k] for k in (
     "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
     "Q_aa", "acc_i", "acc_f", "th_acc", "U", "d", "dx", "q_params", "param_idx", "q_dt",
-    "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "innov", "sig"))
+    "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "innov", "sig", "omega"))
 
 
 @inline_kernel
@@ -253,7 +254,8 @@ def unpack(fb, ib, bb, lay):
 
 @kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
-                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end):
+                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
+                 clock_I, clock_F):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -265,7 +267,11 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
     samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
     (radical_rt.fdi._SampleBuffer, room already made; its owner advances its end), as the
-    reference path's on_gyro hook does before the engine runs."""
+    reference path's on_gyro hook does before the engine runs. pred (9,): with pred[0] = 1 and
+    pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
+    sample-triggered telemetry from its final state (:func:`radical_rt.gyro_queue.predict_pending`
+    through the queue's samples z..q_end−1 and the clock's held-back read, clock state
+    clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω."""
     if g_end >= 0:
         _append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -290,4 +296,14 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
             return reason, k, e, 1
         e += 1
     reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt)
+    if reason == R_DONE and pred[0] == 1.0:
+        q, omega = E[_Q], E[_OMEGA]
+        q_p, omega_p = pred[2:6], pred[6:9]
+        for c in range(4):
+            q_p[c] = q[c]
+        for c in range(3):
+            omega_p[c] = omega[c]
+        pred[1] = predict_pending(dth, dt, status, z, q_end, pred[1], clock_I, clock_F,
+                                  E[_EXCLUDED], E[_XP], E[_A], E[_GP], q_p, omega_p)
+        pred[0] = 2.0
     return reason, k, e, 0

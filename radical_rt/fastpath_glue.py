@@ -35,15 +35,17 @@ def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 class FastRelease:
     """Mixin of :class:`radical_rt.filter.Engine`: :meth:`release` and its fast-path glue."""
 
-    def release(self, arrays, a: int, z: int, events) -> None:
+    def release(self, arrays, a: int, z: int, events, predict=None) -> None:
         """One release of the stream processor: for each tracker event (j, t_epoch, q_meas,
         n_stars, valid) in epoch order, the gyro samples up to its epoch, then the sample; then
         the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
         (the stream's :class:`~radical_rt.gyro_queue.GyroQueue`), first given to the FDI's
         history (:meth:`radical_rt.fdi.FaultMonitor.on_gyro_rows`, or the kernel's own copy).
         events: a :class:`radical_rt.tracker_queue.EventBlock` (rows of the stream's tracker
-        queue, which the kernel reads in place). The same as the reference calls, run by
-        :func:`fastpath.fast_release` while it applies."""
+        queue, which the kernel reads in place). predict: None, or (pred, q_end, clock_I,
+        clock_F) for the kernel's prediction of sample-triggered telemetry at the end of a release
+        it completes (see fast_release; pred[0] = 1 asks for it, 2 says it was made). The same as
+        the reference calls, run by :func:`fastpath.fast_release` while it applies."""
         fdi = self.fdi
         if not (self.fast and self.att_valid):
             if fdi is not None and z > a:
@@ -56,6 +58,7 @@ class FastRelease:
             g_f, g_i, g_b, g_end = gbuf._f, gbuf._i, gbuf._b, gbuf.end
         else:
             g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
+        pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_I, self._no_hist_f)
         ev_f, ev_i, evo_f, evo_i = events.f, events.i, events.out_f, events.out_i
         n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         t, dt, dtheta, status, bridged, var_extra = arrays
@@ -70,7 +73,7 @@ class FastRelease:
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end)
+                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F)
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
@@ -118,6 +121,8 @@ class FastRelease:
 
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
+    # ... and for its prediction when none is asked for (pred[0] = 0)
+    _no_pred, _no_I, _no_hist_f = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
     def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """:meth:`_tracker_bookkeeping` of the rows e..e_stop−1 of an event block the kernel

@@ -70,6 +70,7 @@ class StreamProcessor:
         self._last_flags = None
         self._gq = GyroQueue(engine.n_gyro)
         self._wire = SiruWire(engine.n_gyro)  # compiled decoding of plain siru messages
+        self._pred = np.zeros(9)  # the release kernel's prediction for sample packets (now())
         self._begin_stream()
         engine.listener = self._on_window
         engine.wake_source = self._wake
@@ -198,14 +199,19 @@ class StreamProcessor:
         late-tracker test). Nothing observable happens in such a release — no window closes, so
         no output — and the next release processes the same events in the same order; the
         stream defers on tracker and temperature messages, never before sample outputs."""
-        gq, e, tq = self._gq, self.engine, self._tq
+        gq, e, tq, pred = self._gq, self.engine, self._tq, self._pred
+        pred[0] = 0.0  # no prediction from this release (yet)
         a = gq.head
         plan, e1, z = release_plan(tq.ss, tq.si, tq.ev_f, gq.t, a, gq.end, watermark,
                                    int(e.acc_i[0]), e.si.prop_window, defer)
         if plan != PLAN_GO:
             return
         gq.head = z  # taken before the engine runs
-        e.release(gq.arrays(), a, z, tq.block(e1))
+        predict = None
+        if self._sample_packets and not defer:  # the kernel also predicts (see now())
+            pred[0], pred[1] = 1.0, self.t_now
+            predict = (pred, gq.end) + self.clock.state_arrays()
+        e.release(gq.arrays(), a, z, tq.block(e1), predict)
 
     def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
         """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
@@ -290,6 +296,7 @@ class StreamProcessor:
     def packets(self, specs: dict[str, PacketSpec]) -> None:
         self._packets = specs
         self._packet_wake = None
+        self._sample_packets = any(s.trigger == "sample" for s in specs.values())
 
     def _on_window(self, t: float) -> None:
         self._packet_wake = None  # the packets' due() below moves their schedule
@@ -309,11 +316,16 @@ class StreamProcessor:
             self._out.append(("diag", self.diag_message(memo)))
 
     def _sample_outputs(self) -> None:
-        """Sample-triggered packets due at the newest sample time, with the predicted attitude."""
+        """Sample-triggered packets due at the newest sample time, with the predicted attitude
+        (made by the release kernel itself when the release it just ran ended there, else by
+        :meth:`now`)."""
         now = None
         for spec in self.packets.values():
             if spec.trigger == "sample" and spec.due(self.t_now):
-                now = now or self.now()
+                if now is None:
+                    pred = self._pred
+                    now = _now_fields(float(pred[1]), pred[2:6], pred[6:9]) if pred[0] == 2.0 \
+                        else self.now()
                 self._out.append((f"tlm/{spec.name}", build(spec, self, now)))
 
     def now(self) -> dict[str, Any]:
