@@ -4,7 +4,8 @@
 release of the stream processor to :func:`radical_rt.fastpath.fast_release` and does, in Python,
 what the kernel hands back: the bookkeeping of the tracker samples it completed, the reference
 steps from a handover point on (:meth:`_window_done`, :meth:`_tracker_done`), and the loading
-and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, and the end of each kernel call in :meth:`release`).
+and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, and the end of each
+kernel call in :meth:`release`).
 The reference path itself (``Engine.gyro``, ``Engine.tracker`` and their helpers) stays in
 :mod:`radical_rt.filter`; docs/engine.md §1.1 describes both.
 """
@@ -126,22 +127,24 @@ class FastRelease:
 
     def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """:meth:`_tracker_bookkeeping` of the rows e..e_stop−1 of an event block the kernel
-        completed, read from the block's arrays in one pass (no event tuples)."""
+        completed, read from the block's arrays in one pass (no event tuples; the FDI's
+        quaternions and the diagnostics are rows of one copy each)."""
         f = events.f
         heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
-        outs_f, outs_i = events.out_f[e:e_stop].copy(), events.out_i[e:e_stop].tolist()
-        last, fdi, counters = self.last_valid_st, self.fdi, self.counters
-        for r, (j, n_stars, _valid, _seq) in enumerate(heads):
-            t_epoch = epochs[r]
+        quats, outs_f = f[e:e_stop, 1:5].copy(), events.out_f[e:e_stop].copy()
+        outs_i = events.out_i[e:e_stop].tolist()
+        last, fdi = self.last_valid_st, self.fdi
+        for r, head in enumerate(heads):
+            j, t_epoch = head[0], epochs[r]
             last[j] = t_epoch
             if fdi is not None:
-                fdi.on_tracker(j, t_epoch, f[e + r, 1:5].copy(), n_stars)
+                fdi.on_tracker(j, t_epoch, quats[r], head[1])
             status, edited, updated, consider = outs_i[r]
             if not updated:
                 continue
             kind = _ST_KIND[j]
             if consider:
-                counters[kind + "_consider"] += 1
+                self.counters[kind + "_consider"] += 1
             if status:
                 self._check(status)
             out_f = outs_f[r]
@@ -182,8 +185,13 @@ class FastRelease:
     def _fast_begin(self) -> None:
         """Load the scalar state into the fast path's io arrays (:meth:`release` takes it back
         after each kernel call)."""
-        last, pq = self.last_valid_st, self.parity_queue
-        wake_t, wake_e = self._wake()
+        last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
+        wake_e = math.inf if fdi is None else fdi.wake_time()
+        if src is None:
+            wake_t = math.inf
+        else:  # the listener's (the stream's packets and flags)
+            wake_t, e = src()
+            wake_e = min(wake_e, e)
         self._fast_io[:9] = (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
                              pq[0][0] if pq else math.inf, last.get(1, -math.inf),
                              last.get(2, -math.inf), _MODE_CODE.get(self.mode, -1.0))
@@ -200,17 +208,9 @@ class FastRelease:
         self._fast_io = np.zeros(10)
         self._fast_cnt = np.zeros(8, np.int64)
 
-    def _wake(self) -> tuple[float, float]:
-        """(wake_t, wake_e) of radical_rt.fastpath: the event time and the engine time from which
-        :meth:`on_window` has work although the flags stay the same (−inf: at once)."""
-        wake_e = math.inf if self.fdi is None else self.fdi.wake_time()
-        src = self.wake_source
-        if src is None:
-            return math.inf, wake_e
-        wake_t, e = src()
-        return wake_t, min(wake_e, e)
-
-    # callable() → (wake_t, wake_e) of the listener (the stream's packets)
+    # callable() → (wake_t, wake_e) of the listener (the stream's packets): the event time and
+    # the engine time from which on_window has work although the flags stay the same (−inf: at
+    # once); _fast_begin combines it with the FDI's wake_time()
     wake_source: Callable[[], tuple[float, float]] | None = None
 
     def _tracker_done(self, reason: int, ev, out_f, out_i) -> None:
