@@ -54,6 +54,7 @@ from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK, kern
 from radical_rt.filter import Engine
 from radical_rt.flags import Flag
 from radical_rt.model import contract_from_internal
+from radical_rt.timeupdate import ACC_NOISE_T, NOISE_PERIOD_S
 
 # ------------------------------------------------------------------------------------- kernels
 
@@ -270,7 +271,13 @@ class DenseEngine(Engine):
         if kappa < 1.0:
             self._scale_regressor_columns(self.Phi_ap, kappa)
         self._dirty(dense_time_update(self.P, 3, self.Phi_aa, self.Phi_ap, self.Q_aa, self._T))
-        self._cov_add_diagonal(self.param_idx, self.q_params * self.acc_f[0])
+        # the parameter noise accumulated and added once a second, as radical_rt.timeupdate
+        self.q_dt += self.q_params * self.acc_f[0]
+        self.acc_f[ACC_NOISE_T] += self.acc_f[0]
+        if self.acc_f[ACC_NOISE_T] >= NOISE_PERIOD_S:
+            self._cov_add_diagonal(self.param_idx, self.q_dt.copy())
+            self.q_dt[:] = 0.0
+            self.acc_f[ACC_NOISE_T] = 0.0
         self._reset_time_window()
         return kappa
 

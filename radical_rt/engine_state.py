@@ -45,9 +45,11 @@ class EngineState:
         self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))  # parity-sum statistics
         self.theta_par, self.Phi_par = np.zeros(3), np.zeros((3, 5 * n))
         self.parity_queue: deque = deque()  # closed parity sums waiting for their lag
-        self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(3)
+        # acc_f: window length, parity-sum noise and length, time since the parameter noise was
+        # last added (timeupdate.ACC_NOISE_T) [s]
+        self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(4)
         self.th_acc = np.zeros(3)  # Σθ̂ over the time-update window
-        self.q_dt = np.zeros(npar)  # parameter process noise of the window [unit²]
+        self.q_dt = np.zeros(npar)  # parameter process noise accumulated, not yet added [unit²]
         self.kappa_last = np.ones(2)  # last regressor reliability (time update, parity)
         self.omega = np.zeros(3)
         m_max = max(3, nr)  # measurement rows per update (tracker 3, parity n−3)

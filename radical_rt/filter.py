@@ -40,7 +40,7 @@ from .model import (
 from .params import ParamTable, to_si
 from .propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from .state import PARAM_GROUPS, StateLayout
-from .timeupdate import close_time_window, regressor_reliability
+from .timeupdate import ACC_NOISE_T, close_time_window, regressor_reliability
 from .updates import gated_update, gated_update_consider, timing_noise, unwhiten_diagnostics
 
 
@@ -81,6 +81,8 @@ class Engine(FastRelease, EngineState):
         self.d[3:] = np.asarray(self.si.p0_params)
         self.N[:, :] = self.geo.N
         self.parity_queue.clear()
+        self.q_dt[:] = 0.0  # no parameter noise pending for the new covariance
+        self.acc_f[ACC_NOISE_T] = 0.0
         self._refresh()
         self._begin_attitude_init()
         self.counters["cold_starts"] += 1
@@ -135,7 +137,8 @@ class Engine(FastRelease, EngineState):
 
     def _cov_close_window(self, noise_var: float) -> float:
         """Close the time-update window on the accumulators (:mod:`radical_rt.timeupdate`): κ
-        scaling of Φ_ap, P ← ΦPΦᵀ + diag(Q_aa, 0), parameter noise q·Δt, accumulators reset.
+        scaling of Φ_ap, P ← ΦPΦᵀ + diag(Q_aa, 0), parameter noise q·Δt accumulated (added once
+        a second), accumulators reset.
         noise_var: increment noise of Θ̂ (see :meth:`_regressor_reliability`). Returns κ."""
         status, kappa = close_time_window(
             self.U, self.d, self.Phi_aa, self.Phi_ap, self.Q_aa, self.th_acc, self.acc_i,
@@ -227,7 +230,7 @@ class Engine(FastRelease, EngineState):
         self.par_y[:, :] = 0.0
         self.par_t[:, :] = 0.0
         self.acc_i[1:] = 0
-        self.acc_f[1:] = 0.0
+        self.acc_f[1:3] = 0.0
 
     def _regressor_reliability(self, theta, Phi_g, noise_var: float) -> float:
         """Reliability κ ∈ [0, 1] of a summed body increment Θ̂ as the regressor of the λ, μ, du, dv

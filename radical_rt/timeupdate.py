@@ -7,8 +7,16 @@ accumulated transition Φ = [[Φ_aa, Φ_ap], [0, I]], attitude noise Q_aa, and s
 1. regressor reliability κ of Θ̂ (errors-in-variables control, docs/engine.md): the λ, μ, du, dv
    columns of Φ_ap are scaled by κ;
 2. structured UD time update P ← ΦPΦᵀ + diag(Q_aa, 0) (:func:`radical_rt.ud.structured_time_update`);
-3. parameter random-walk noise P_pp += diag(q) Δt (:func:`radical_rt.ud.add_diagonal_noise`);
+3. parameter random-walk noise: diag(q) Δt is accumulated, and P_pp += the accumulated noise
+   (:func:`radical_rt.ud.add_diagonal_noise`, 24 rank-one updates, the most expensive step of a
+   close) once NOISE_PERIOD_S of windows have passed;
 4. the accumulators are reset (Φ_aa = I, Φ_ap = 0, Q_aa = 0, Θ̂ = 0, count and Δt = 0).
+
+Why the noise can wait a second: the parameters are random walks with Φ_pp = I, so
+P_pp(t + T) = P_pp(t) + q T exactly, whenever within T it is added; what the wait changes is the
+attitude-parameter coupling Φ_ap q τ Φ_apᵀ of the noise not yet added (τ < 1 s), a relative
+change of order q T / P_pp (1e-6 for the 2006216 tables) of the covariance, against the ≈ 3 µs
+per 0.1 s the rank-one updates cost (perf/README.md). The dense reference of perf/ does the same.
 
 The formula of κ is the one of :meth:`radical_rt.filter.Engine._regressor_reliability`; the dense
 reference (perf/dense_engine.py) computes it from P independently.
@@ -20,6 +28,9 @@ import numpy as np
 
 from ._jit import kernel
 from .ud import add_diagonal_noise, structured_time_update
+
+NOISE_PERIOD_S = 1.0  # the accumulated parameter process noise is added once this much has passed
+ACC_NOISE_T = 3  # acc_f[ACC_NOISE_T]: time since the noise was last added [s]
 
 
 @kernel
@@ -54,14 +65,15 @@ def regressor_reliability(U, d, g0, theta, Phi_g, Minv, noise_var, k_sigma):
 
 @kernel
 def close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv, n_gyro, noise_var,
-                      k_sigma, q_params, param_idx, c_work, struct_work, a_work):
+                      k_sigma, q_params, param_idx, q_acc, struct_work, a_work):
     """Close the time-update window (steps 1–4 of the module docstring) on (U, d) in place.
 
     Phi_aa (3, 3), Phi_ap (3, ns−3), Q_aa (3, 3), th_acc (3,), acc_i[0] (sample count) and
     acc_f[0] (window length [s]) are the accumulators; Minv (3, 3); noise_var: the increment noise
     of Θ̂ [rad² per unit of Minv]; q_params (ns−3,) [unit²/s], param_idx (ns−3,) the parameter
-    states; c_work (ns−3,), struct_work (3, ≥ ns+3), a_work (ns,) work. The accumulators are reset
-    whatever the status. Returns (UD kernel status, κ).
+    states; q_acc (ns−3,) [unit²] and acc_f[ACC_NOISE_T] [s]: the parameter noise accumulated
+    since it was last added and its time (step 3); struct_work (3, ≥ ns+3), a_work (ns,) work.
+    The window accumulators are reset whatever the status. Returns (UD kernel status, κ).
     """
     n = n_gyro
     kappa = regressor_reliability(U, d, 3, th_acc, Phi_ap[:, :5 * n], Minv, noise_var, k_sigma)
@@ -72,8 +84,12 @@ def close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv, n_
     status = structured_time_update(U, d, 3, Phi_aa, Phi_ap, Q_aa, struct_work)
     if status == 0:
         for k in range(q_params.shape[0]):
-            c_work[k] = q_params[k] * acc_f[0]
-        status = add_diagonal_noise(U, d, param_idx, c_work, a_work)
+            q_acc[k] += q_params[k] * acc_f[0]
+        acc_f[ACC_NOISE_T] += acc_f[0]
+        if acc_f[ACC_NOISE_T] >= NOISE_PERIOD_S:
+            status = add_diagonal_noise(U, d, param_idx, q_acc, a_work)
+            q_acc[:] = 0.0
+            acc_f[ACC_NOISE_T] = 0.0
     for r in range(3):
         th_acc[r] = 0.0
         for c in range(3):
