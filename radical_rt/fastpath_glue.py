@@ -59,7 +59,8 @@ class FastRelease:
             g_f, g_i, g_b, g_end = gbuf._f, gbuf._i, gbuf._b, gbuf.end
         else:
             g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
-        pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_I, self._no_hist_f)
+        pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_clock_I,
+                                                     self._no_clock_F)
         ev_f, ev_i, evo_f, evo_i = events.f, events.i, events.out_f, events.out_i
         n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         t, dt, dtheta, status, bridged, var_extra = arrays
@@ -123,7 +124,7 @@ class FastRelease:
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
     # ... and for its prediction when none is asked for (pred[0] = 0)
-    _no_pred, _no_I, _no_hist_f = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
+    _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
     def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """:meth:`_tracker_bookkeeping` of the rows e..e_stop−1 of an event block the kernel

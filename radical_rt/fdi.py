@@ -53,7 +53,8 @@ SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
 BUFFER_S = 600.0  # gyro and tracker history kept for the bank
 ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
 BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
-CHECK_MAX_S = 2.0  # outside an alarm: bookkeeping at each parity sum, at the latest this long after the last
+# outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
+CHECK_MAX_S = 2.0
 QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
 NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
 CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
