@@ -15,7 +15,7 @@ import numpy as np
 from . import ud
 from .flags import Flag
 from .geometry import Geometry
-from .model import contract_from_internal
+from .model import contract_from_internal, contract_sigma_ud
 from .state import PARAM_GROUPS, StateLayout
 
 # flag bits as plain ints (IntFlag arithmetic is slow on the 10 Hz path)
@@ -163,10 +163,16 @@ class EngineState:
     def contract_sigma(self) -> np.ndarray:
         """1σ (npar,) of the contract's parameters: sqrt(diag(J P_pp Jᵀ)) straight from the UD
         factors, Σ_l d_l (J U_pp)²_il (P_pp = U_pp D_p U_ppᵀ because U is unit upper triangular;
-        neither P nor J P Jᵀ is formed). The dense reference overrides it."""
-        _, J = contract_from_internal(self.xp, self.n_gyro)
-        F = J @ self.U[3:, 3:]
-        return np.sqrt(np.maximum((F * F) @ self.d[3:], 0.0))
+        neither P nor J P Jᵀ is formed; :func:`radical_rt.model.contract_sigma_ud`). The dense
+        reference overrides it."""
+        npar = self.xp.shape[0]
+        if self._sig_work is None or self._sig_work.shape[0] != npar:
+            self._sig_work = np.empty((npar, npar))
+        sig = np.empty(npar)
+        contract_sigma_ud(self.xp, self.n_gyro, self.U, self.d, self._sig_work, sig)
+        return sig
+
+    _sig_work: np.ndarray | None = None  # J of contract_sigma_ud
 
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, convergence test on the UD variances, and the mode."""

@@ -382,6 +382,39 @@ def contract_from_internal(xp, n):
 
 
 @kernel
+def contract_sigma_ud(xp, n, U, d, J, sig):
+    """1σ (npar,) of the contract parameters into sig, straight from the UD factors: σ_i² =
+    Σ_l d_l (J U_pp)²_il over the parameter block (U (ns, ns) unit upper, d (ns,), parameters
+    from state 3), with J = ∂contract/∂internal of :func:`contract_from_internal` (written into
+    the work matrix J (npar, npar)); J has at most four entries per row, so the product is taken
+    over a row's nonzero entries only (P and J P Jᵀ are never formed)."""
+    npar = xp.shape[0]
+    for r in range(npar):
+        for c in range(npar):
+            J[r, c] = 1.0 if r == c else 0.0
+    _contract_from_internal(xp, n, np.empty(npar), J)
+    cols = np.empty(npar, np.int64)
+    vals = np.empty(npar)
+    for i in range(npar):
+        m = 0
+        for k in range(npar):
+            if J[i, k] != 0.0:
+                cols[m], vals[m] = k, J[i, k]
+                m += 1
+        if m == 0:
+            sig[i] = 0.0
+            continue
+        acc = 0.0
+        lo = cols[0]  # U is upper triangular: row k of U_pp is zero left of column k
+        for col in range(lo, npar):
+            f = 0.0
+            for a in range(m):
+                f += vals[a] * U[3 + cols[a], 3 + col]
+            acc += d[3 + col] * f * f
+        sig[i] = np.sqrt(max(acc, 0.0))
+
+
+@kernel
 def _contract_from_internal(xp, n, out, J):
     """The per-gyro part of :func:`contract_from_internal` into out (copy of xp) and J (= I)."""
     for i in range(n):
