@@ -162,15 +162,17 @@ class StreamProcessor:
         j = 1 if topic == "st1" else 2
         e, gq, tq = self.engine, self._gq, self._tq
         si = e.si
-        while True:
+        plain = isinstance(payload, (bytes, bytearray, memoryview))
+        decoded = None
+        while True:  # once, or again after the queue grew (IN_FULL: nothing changed)
             args = (j, si.latency_st_s, self.reorder_slack_s, tq.ss, tq.si, tq.ev_f, tq.ev_i,
                     gq.t, gq.head, gq.end, int(e.acc_i[0]), si.prop_window)
             code = IN_FALLBACK
-            if isinstance(payload, (bytes, bytearray, memoryview)):
+            if plain and decoded is None:
                 code = tracker_intake(np.frombuffer(payload, np.uint8), *args, tq.q_work)
             if code == IN_FALLBACK:
-                t, q, n_stars, valid = decode_tracker(unpack(payload))
-                code = tracker_accept(t, q, n_stars, valid, *args)
+                decoded = decoded or decode_tracker(unpack(payload))
+                code = tracker_accept(*decoded, *args)
             if code != IN_FULL:
                 break
             tq.grow()
@@ -296,7 +298,9 @@ class StreamProcessor:
     def packets(self, specs: dict[str, PacketSpec]) -> None:
         self._packets = specs
         self._packet_wake = None
-        self._sample_packets = any(s.trigger == "sample" for s in specs.values())
+        # the sample-triggered packets and their keys (built after each SIRU message)
+        self._sample_specs = [(f"tlm/{n}", s) for n, s in specs.items() if s.trigger == "sample"]
+        self._sample_packets = bool(self._sample_specs)
 
     def _on_window(self, t: float) -> None:
         self._packet_wake = None  # the packets' due() below moves their schedule
@@ -320,13 +324,13 @@ class StreamProcessor:
         (made by the release kernel itself when the release it just ran ended there, else by
         :meth:`now`)."""
         now = None
-        for spec in self.packets.values():
-            if spec.trigger == "sample" and spec.due(self.t_now):
+        for key, spec in self._sample_specs:
+            if spec.due(self.t_now):
                 if now is None:
                     pred = self._pred
                     now = _now_fields(float(pred[1]), pred[2:6], pred[6:9]) if pred[0] == 2.0 \
                         else self.now()
-                self._out.append((f"tlm/{spec.name}", build(spec, self, now)))
+                self._out.append((key, build(spec, self, now)))
 
     def now(self) -> dict[str, Any]:
         """Packet fields ``t``, ``q_body_from_inertial``, ``omega_body`` at the newest sample:

@@ -238,3 +238,20 @@ def test_intake_refusals_change_nothing():
     assert tracker_intake(odd, *args) == IN_FALLBACK
     assert np.array_equal(tq.si, before[1]) and np.array_equal(tq.ev_f, before[2])
     assert np.array_equal(tq.ss[:4], before[0][:4])  # (ss[4] only notes the refused t_bus)
+
+
+@pytest.mark.parametrize("as_map", [False, True])
+def test_stream_grows_the_queue_for_waiting_samples(as_map):
+    """Tracker samples with no gyro data yet pile up: the stream grows a one-row queue as needed,
+    whether the compiled intake (bytes) or the general path (maps) takes them."""
+    from radical_rt.filter import Engine
+    from radical_rt.stream import StreamProcessor
+    sp = StreamProcessor(Engine(), reorder_slack_s=1e4)  # nothing becomes due
+    sp._tq = TrackerQueue(capacity=1)
+    sp._begin_stream()
+    for k in range(40):
+        m = _plain(t_bus=1000.0 + 0.1 * k)
+        sp.feed("st1" if k % 2 else "st2", m if as_map else msgpack.packb(m))
+    assert len(sp._tq) == 40 and sp._tq.ev_f.shape[0] >= 40 and not sp.rejected
+    epochs = sp._tq.ev_f[:40, 0]
+    assert np.all(np.diff(epochs) > 0)
