@@ -255,7 +255,8 @@ def unpack(fb, ib, bb, lay):
 @kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F):
+                 clock_I, clock_F, s_t, s_locked, s_sig_t, wake_t, wake_e, s_parity, s_last1,
+                 s_last2, s_mode, s_flags):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -271,7 +272,12 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
     sample-triggered telemetry from its final state (:func:`radical_rt.gyro_queue.predict_pending`
     through the queue's samples z..q_end−1 and the clock's held-back read, clock state
-    clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω."""
+    clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω.
+    s_t .. s_flags: the engine's scalar state, loaded into io[0:9] and cnt[0] (cnt[1:4] ← 0, 0,
+    −1) first (module docstring; FastRelease._fast_begin)."""
+    io[0], io[1], io[2], io[3], io[4] = s_t, s_locked, s_sig_t, wake_t, wake_e
+    io[5], io[6], io[7], io[8] = s_parity, s_last1, s_last2, s_mode
+    cnt[0], cnt[1], cnt[2], cnt[3] = s_flags, 0, 0, -1
     if g_end >= 0:
         _append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)

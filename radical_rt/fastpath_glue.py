@@ -71,11 +71,10 @@ class FastRelease:
             if not self.att_valid:
                 self._release_ref(arrays, k, z, events.after(e))
                 return
-            self._fast_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F)
+                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, *self._fast_begin())
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
@@ -183,9 +182,11 @@ class FastRelease:
     # ---------------------------------------------------------------- fast-path glue
     fast = True  # use radical_rt.fastpath (the dense reference of perf/ turns it off)
 
-    def _fast_begin(self) -> None:
-        """Load the scalar state into the fast path's io arrays (:meth:`release` takes it back
-        after each kernel call)."""
+    def _fast_begin(self) -> tuple:
+        """The scalar state the fast path loads into its io arrays at the start of a call (the
+        last ten arguments of :func:`fastpath.fast_release`; :meth:`release` takes it back after
+        each call): t, locked_since, σ of the time line, wake_t, wake_e, epoch of the oldest
+        queued parity sum, last valid epochs of ST1 and ST2, mode code, flags."""
         last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
         wake_e = math.inf if fdi is None else fdi.wake_time()
         if src is None:
@@ -193,10 +194,9 @@ class FastRelease:
         else:  # the listener's (the stream's packets and flags)
             wake_t, e = src()
             wake_e = min(wake_e, e)
-        self._fast_io[:9] = (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
-                             pq[0][0] if pq else math.inf, last.get(1, -math.inf),
-                             last.get(2, -math.inf), _MODE_CODE.get(self.mode, -1.0))
-        self._fast_cnt[:4] = (self.flags, 0, 0, -1)
+        return (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
+                pq[0][0] if pq else math.inf, last.get(1, -math.inf), last.get(2, -math.inf),
+                _MODE_CODE.get(self.mode, -1.0), int(self.flags))
 
     def _fast_config(self) -> None:
         """Scalar parameters and io arrays of the fast path (after every parameter change)."""
