@@ -91,7 +91,7 @@ class FastRelease:
                 self._trackers_taken(events, e, e_stop)
             e = e_stop
             if stage == 1:
-                self._tracker_done(reason, events.event(e), evo_f[e].copy(), evo_i[e].tolist())
+                self._tracker_done(reason, events, e)
                 e += 1
                 continue
             if reason == fp.R_DONE:
@@ -125,21 +125,25 @@ class FastRelease:
     # ... and for its prediction when none is asked for (pred[0] = 0)
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
-    def _trackers_taken(self, events, e: int, e_stop: int) -> None:
-        """:meth:`_tracker_bookkeeping` of the rows e..e_stop−1 of an event block the kernel
-        completed, read from the block's arrays in one pass (no event tuples; the FDI's
-        quaternions and the diagnostics are rows of one copy each)."""
+    def _trackers_taken(self, events, e: int, e_stop: int) -> bool:
+        """The reference path's bookkeeping of the rows e..e_stop−1 of an event block the kernel
+        completed (valid tracker samples): last valid epoch, FDI hook and, where the update ran,
+        status check, diagnostics and counters, read from the block's arrays in one pass (no event
+        tuples; the FDI's quaternions and the diagnostics are rows of one copy each). Returns
+        whether the last row's update was used."""
         f = events.f
         heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
         quats, outs_f = f[e:e_stop, 1:5].copy(), events.out_f[e:e_stop].copy()
         outs_i = events.out_i[e:e_stop].tolist()
         last, fdi = self.last_valid_st, self.fdi
+        used = False
         for r, head in enumerate(heads):
             j, t_epoch = head[0], epochs[r]
             last[j] = t_epoch
             if fdi is not None:
                 fdi.on_tracker(j, t_epoch, quats[r], head[1])
             status, edited, updated, consider = outs_i[r]
+            used = False
             if not updated:
                 continue
             kind = _ST_KIND[j]
@@ -148,26 +152,8 @@ class FastRelease:
             if status:
                 self._check(status)
             out_f = outs_f[r]
-            self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
-
-    def _tracker_bookkeeping(self, ev, out_f, out_i) -> bool:
-        """The reference path's bookkeeping of a valid tracker event the fast path took: last
-        valid epoch, FDI hook and, if its update ran (out_i[2]), status check, diagnostics and
-        counters. out_f (7,): a copy of the event's row of fast_release's evo_f (kept as the
-        diagnostics); out_i: its row of evo_i as a list. Returns used."""
-        j, t_epoch, q_meas, n_stars, _valid = ev
-        self.last_valid_st[j] = t_epoch
-        if self.fdi is not None:
-            self.fdi.on_tracker(j, t_epoch, q_meas, n_stars)
-        status, edited, updated, consider = out_i
-        if not updated:
-            return False
-        kind = _ST_KIND[j]
-        if consider:
-            self.counters[kind + "_consider"] += 1
-        if status:
-            self._check(status)
-        return self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+            used = self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+        return used
 
     def _window_done(self, reason: int) -> None:
         """Python's share of a window close the gyro fast path handed over."""
@@ -214,17 +200,18 @@ class FastRelease:
     # once); _fast_begin combines it with the FDI's wake_time()
     wake_source: Callable[[], tuple[float, float]] | None = None
 
-    def _tracker_done(self, reason: int, ev, out_f, out_i) -> None:
-        """A tracker event at which :func:`radical_rt.fastpath.fast_release` handed over: the
-        bookkeeping of what the kernel did, then the reference steps from there."""
+    def _tracker_done(self, reason: int, events, e: int) -> None:
+        """Row e of the event block, at which :func:`radical_rt.fastpath.fast_release` handed
+        over: the bookkeeping of what the kernel did, then the reference steps from there."""
+        ev = events.event(e)
         if reason == fp.R_TRACKER_PY:  # invalid sample: the reference path counts it
             self.tracker(*ev)
             return
-        used = self._tracker_bookkeeping(ev, out_f, out_i)
+        used = self._trackers_taken(events, e, e + 1)
         j, t_epoch, q_meas, n_stars, _valid = ev
         if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:
             if reason == fp.R_CLOSE_TAIL:
-                self._check(int(out_i[0]))
+                self._check(int(events.out_i[e, 0]))
                 self._close_tail()
             self._tracker_update(j, t_epoch, q_meas, n_stars)
             self._apply_correction()

@@ -209,31 +209,43 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
 
 
 @kernel
+def siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, I, F, chunk, OF, OI, end, q_t,
+                q_dt, q_dth, q_st, q_br, q_ve, tags):
+    """Decoded siru columns (t_bus (k,) [s], tt, dtheta (k, n) [rad], status) into the stream:
+    its time check (ss[i_last]: the last t_bus of the previous batch [s]; the first sample of
+    this one must be later), ss[i_last] and the newest time ss[i_tmax] updated, then the SIRU
+    clock (state I, F) and the append of the released samples to the gyro queue arrays q_* from
+    row end (:func:`radical_rt.clock_kernels.clock_push_rows`; the caller has made room for
+    k·(max_bridge + 1) rows). Returns (WIRE_*, rows appended); WIRE_DUPLICATE / WIRE_BACKWARDS:
+    refused by the time check, nothing changed."""
+    k = t_bus.shape[0]
+    last = ss[i_last]
+    if t_bus[0] == last:
+        return WIRE_DUPLICATE, 0
+    if t_bus[0] < last:
+        return WIRE_BACKWARDS, 0
+    ss[i_last] = t_bus[k - 1]
+    ss[i_tmax] = max(ss[i_tmax], t_bus[k - 1])
+    m = clock_push_rows(I, F, t_bus, tt, dtheta, status, chunk, OF, OI, end, q_t, q_dt, q_dth,
+                        q_st, q_br, q_ve, tags)
+    return WIRE_OK, m
+
+
+@kernel
 def siru_intake(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap, ss, i_last, i_tmax, I, F,
                 chunk, OF, OI, end, q_t, q_dt, q_dth, q_st, q_br, q_ve, tags):
-    """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, the
-    stream's time check (ss[i_last]: the last t_bus of the previous batch [s]; the first sample
-    of this one must be later), ss[i_last] and the newest time ss[i_tmax] updated, then the
-    SIRU clock (state I, F) and the append of the released samples to the gyro queue arrays
-    q_* from row end (:func:`radical_rt.clock_kernels.clock_push_rows`; the caller has made room
-    for len(t_bus)·(max_bridge + 1) rows). Returns (WIRE_*, k, rows appended): WIRE_FALLBACK —
-    not the plain layout (nothing changed); WIRE_GROW — the column buffers need k rows;
-    WIRE_DUPLICATE / WIRE_BACKWARDS — refused by the time check (nothing changed)."""
+    """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, then
+    :func:`siru_accept`. Returns (WIRE_*, k, rows appended): WIRE_FALLBACK — not the plain
+    layout (nothing changed); WIRE_GROW — the column buffers need k rows; WIRE_DUPLICATE /
+    WIRE_BACKWARDS — refused by the time check (nothing changed)."""
     k = parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap)
     if k == FALLBACK:
         return WIRE_FALLBACK, 0, 0
     if k < 0:
         return WIRE_GROW, -k - 2, 0
-    last = ss[i_last]
-    if t_bus[0] == last:
-        return WIRE_DUPLICATE, k, 0
-    if t_bus[0] < last:
-        return WIRE_BACKWARDS, k, 0
-    ss[i_last] = t_bus[k - 1]
-    ss[i_tmax] = max(ss[i_tmax], t_bus[k - 1])
-    m = clock_push_rows(I, F, t_bus[:k], tt[:k], dtheta[:k], status[:k], chunk, OF, OI, end, q_t,
-                        q_dt, q_dth, q_st, q_br, q_ve, tags)
-    return WIRE_OK, k, m
+    code, m = siru_accept(t_bus[:k], tt[:k], dtheta[:k], status[:k], ss, i_last, i_tmax, I, F,
+                          chunk, OF, OI, end, q_t, q_dt, q_dth, q_st, q_br, q_ve, tags)
+    return code, k, m
 
 
 class SiruWire:

@@ -26,7 +26,7 @@ from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .siru_wire import WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, WIRE_OK, SiruWire
+from .siru_wire import WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, SiruWire
 from .telemetry import PacketSpec, build, default_packets, read_field
 from .tracker_queue import (
     IN_BACKWARDS,
@@ -130,7 +130,8 @@ class StreamProcessor:
     def _feed_siru(self, payload) -> None:
         """A siru message: decoded, time-checked and pushed through the clock into the gyro
         queue by one kernel call (:meth:`radical_rt.clock.SiruClock.intake`); any other layout
-        through msgpack and :func:`radical_rt.packets.decode_siru`, then the same steps."""
+        through msgpack and :func:`radical_rt.packets.decode_siru`, then the same kernel's steps
+        (:meth:`radical_rt.clock.SiruClock.accept`)."""
         ss, gq = self._tq.ss, self._gq
         status = WIRE_FALLBACK
         if isinstance(payload, (bytes, bytearray, memoryview)):
@@ -139,12 +140,8 @@ class StreamProcessor:
             t0 = float(self._wire.t_bus[0])
         if status == WIRE_FALLBACK:
             t_bus, tt, dth, st = decode_siru(unpack(payload), self.engine.n_gyro)
-            t0, last = float(t_bus[0]), float(ss[SS_LAST_SIRU])
-            status = WIRE_DUPLICATE if t0 == last else WIRE_BACKWARDS if t0 < last else WIRE_OK
-            if status == WIRE_OK:
-                ss[SS_LAST_SIRU] = t_bus[-1]
-                ss[SS_T_MAX] = max(ss[SS_T_MAX], t_bus[-1])
-                m = self.clock.push_into(gq, t_bus, tt, dth, st)
+            t0 = float(t_bus[0])
+            status, m = self.clock.accept(t_bus, tt, dth, st, gq, ss, SS_LAST_SIRU, SS_T_MAX)
         if status == WIRE_DUPLICATE:
             raise InputError("duplicate", f"siru sample at t_bus={t0} repeats the previous one")
         if status == WIRE_BACKWARDS:

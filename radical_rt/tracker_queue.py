@@ -296,11 +296,11 @@ class EventBlock:
     gives the engine. Iterating (or :meth:`event`) gives the reference path's tuples
     ``(j, t_epoch, q_meas (4,) copy, n_stars, valid)``."""
 
-    __slots__ = ("f", "i", "out_f", "out_i", "start", "stop")
+    __slots__ = ("tq", "f", "i", "out_f", "out_i", "start", "stop")
 
     def __init__(self, tq: TrackerQueue, start: int, stop: int) -> None:
+        self.tq, self.start, self.stop = tq, start, stop
         self.f, self.i, self.out_f, self.out_i = tq.ev_f, tq.ev_i, tq.out_f, tq.out_i
-        self.start, self.stop = start, stop
 
     def __len__(self) -> int:
         return self.stop - self.start
@@ -315,7 +315,4 @@ class EventBlock:
 
     def after(self, r: int) -> EventBlock:
         """The rows r..stop−1."""
-        blk = EventBlock.__new__(EventBlock)
-        blk.f, blk.i, blk.out_f, blk.out_i = self.f, self.i, self.out_f, self.out_i
-        blk.start, blk.stop = r, self.stop
-        return blk
+        return EventBlock(self.tq, r, self.stop)
