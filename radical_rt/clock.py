@@ -40,11 +40,9 @@ from radical_rt.clock_kernels import (
     O_VAR,
     clock_push_rows,
     clock_run,
-    line_time,
-    period,
-    tag_sigma,
 )
-from radical_rt.clock_timing import pending_read
+from radical_rt.clock_line import period
+from radical_rt.clock_timing import line_time, pending_read, tag_sigma
 from radical_rt.conventions import SIRU_TT_WRAP
 from radical_rt.packets import MAX_SIRU_BATCH
 from radical_rt.siru_wire import WIRE_GROW, WIRE_OK, siru_accept, siru_intake
@@ -53,8 +51,8 @@ from radical_rt.siru_wire import WIRE_GROW, WIRE_OK, siru_accept, siru_intake
 COUNTER_NAMES = ("samples", "repeated", "missing", "bridged", "anomalies", "wraps", "resets",
                  "gaps", "tt_glitches", "tbus_glitches", "time_jumps", "timing_outliers",
                  "relocks", "unexplained", "repeat_mismatch", "rejected", "tt_jumps",
-                 "margin_grows")
-STATE_SCHEMA = "radical.clock_state/1"
+                 "margin_grows", "crossings", "read_glitches", "crossings_rejected")
+STATE_SCHEMA = "radical.clock_state/2"
 _CHUNK = 16384  # reads per kernel call (bounds the reused output buffers)
 
 
@@ -76,8 +74,8 @@ class ClockConfig:
     wrap: int = 2**32
     mode: str = "reconstruct"  # or "naive"
     # --- estimator tuning
-    jitter_margin_s: float = 10e-6  # initial margin; grows (up to jitter_margin_max_s) if violated
-    jitter_margin_max_s: float = 200e-6
+    jitter_margin_s: float = 1e-3  # polygon margin; grows (up to jitter_margin_max_s) if violated
+    jitter_margin_max_s: float = 1e-3
     freq_offset_ppm: float = 0.0  # prior centre of the SIRU frequency offset
     freq_offset_max_ppm: float = 300.0  # prior half-width
     phase_wander_s_per_s: float = 1e-9  # phase drift bound (polygon inflation)
@@ -86,6 +84,13 @@ class ClockConfig:
     reset_freq_margin_ppm: float = 0.5  # reset(): widen the kept frequency range by this
     slope_scale_samples: float = 1000.0  # N_s: polygon slope unit, s per N_s samples
     lock_sigma_s: float = 100e-6  # `locked` when the tag-error sigma is below this
+    # --- fine line (Kalman filter on the sawtooth crossings, radical_rt.clock_line)
+    line_phase_rw_s_sqrt_s: float = 1e-8  # phase random walk of the line [s/√s]
+    line_freq_rw_per_sqrt_s: float = 3e-10  # frequency random walk [1/√s] (0.02 ppm per hour)
+    line_floor_s: float = 1e-6  # floor of the line's 1σ (the SIRU's own sample jitter) [s]
+    line_gate_sigma: float = 6.0  # a crossing farther than this from the line: loss of lock
+    spate_min_reads: int = 100  # a spate ends after max(this, its length) reads on one level
+    spate_max_reads: int = 200_000  # a spate that does not settle within this is abandoned
     # --- repair
     max_bridge: int = 3
     bridge_accel_sigma_rad_s2: float = 1e-3  # angular-acceleration sigma for bridged variance
@@ -111,6 +116,12 @@ class ClockConfig:
                 raise ValueError(f"{name} must be > 0")
         if self.max_bridge < 0 or self.relock_after_reads < 1:
             raise ValueError("max_bridge must be >= 0 and relock_after_reads >= 1")
+        for name in ("line_floor_s", "line_gate_sigma", "spate_min_reads", "spate_max_reads"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+        for name in ("line_phase_rw_s_sqrt_s", "line_freq_rw_per_sqrt_s"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0")
 
     def params(self) -> np.ndarray:
         """The kernel's parameter block (``F[:NPRM]``)."""
@@ -142,6 +153,12 @@ class ClockConfig:
         p[L.P_LOCK_SIGMA] = self.lock_sigma_s
         p[L.P_TIME_TOL] = self.time_tol_s
         p[L.P_DELTA_MAX] = max(self.jitter_margin_max_s, self.jitter_margin_s)
+        p[L.P_LINE_QX] = self.line_phase_rw_s_sqrt_s ** 2
+        p[L.P_LINE_QY] = (self.line_freq_rw_per_sqrt_s * self.period_s * ns) ** 2
+        p[L.P_SPATE_WMIN] = self.spate_min_reads
+        p[L.P_LINE_FLOOR] = self.line_floor_s
+        p[L.P_LINE_GATE] = self.line_gate_sigma
+        p[L.P_SPATE_MAX] = self.spate_max_reads
         return p
 
 
@@ -294,6 +311,8 @@ class SiruClock:
         dy = self.config.reset_freq_margin_ppm * 1e-6 * fst[L.P_T] * fst[L.P_NS]
         fst[L.F_Y_LO] = max(fst[L.F_Y_LO] - dy, fst[L.P_Y_LO])
         fst[L.F_Y_HI] = min(fst[L.F_Y_HI] + dy, fst[L.P_Y_HI])
+        if ist[L.I_KMEM]:  # the fine line keeps its frequency too, as uncertain as the range
+            fst[L.F_KCYY] += dy * dy / 3.0
 
     def _run(self, t_bus, tt, dtheta, status, final: bool) -> GyroBatch:
         self._sig_cache = self._anom_cache = None
@@ -407,6 +426,10 @@ class SiruClock:
             "max_rejected_violation_s": float(self._F[L.F_MAX_VIOL]),
             "jitter_margin_s": float(self._F[L.F_DELTA]),
             "polygon_vertices": int(self._I[L.I_NV]),
+            "fine_line": bool(self._I[L.I_KAL]),
+            "freq_offset_sigma_ppm": (float(math.sqrt(max(self._F[L.F_KCYY], 0.0)) * scale)
+                                      if self._I[L.I_KMEM] else None),
+            "read_jitter_s": float(self._F[L.F_SIG_READ]),
             "counters": self.counters,
         }
 

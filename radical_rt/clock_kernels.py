@@ -15,16 +15,8 @@ import numpy as np
 
 from radical_rt import clock_layout as L
 from radical_rt._jit import kernel
-from radical_rt.clock_timing import (
-    NO_TIMING,
-    REACQUIRE,
-    TIMING,
-    _raise,
-    _time_read,
-    line_time,
-    period,
-    tag_sigma,
-)
+from radical_rt.clock_line import period, raise_anomaly
+from radical_rt.clock_timing import NO_TIMING, REACQUIRE, TIMING, line_time, time_read
 
 # columns of the output arrays
 O_T = 0
@@ -66,19 +58,6 @@ def _emit(I, F, OF, m, t_rec, t_naive, k):
 
 
 @kernel
-def _event_check(I, F, n, sigma):
-    """Repeats belong just after a wrap (tag error ~ T), single misses just before (~ 0)."""
-    if sigma > F[L.P_LOCK_SIGMA] or I[L.I_ACQ] == 0:
-        return
-    e = F[L.F_E_LAST]
-    w = max(F[L.P_WIN], 6.0 * math.sqrt(F[L.F_RJ2]))  # read jitter spreads the events
-    ok = (n == 0 and abs(e - period(F)) <= w) or (n == 2 and abs(e) <= w)
-    if not ok:
-        I[L.C_UNEXPLAINED] += 1
-        _raise(I, F, F[L.F_TAU_P])
-
-
-@kernel
 def _release_bridges(I, F, OF, OI, m, n, k):
     """Bridge samples k-n+1 .. k-1 by interpolating the neighbouring increments."""
     ng = I[L.I_NG]
@@ -113,34 +92,29 @@ def _accept(I, F, OF, OI, n, mode, wrapped, m):
         n = 1
     k = I[L.I_K_A] + n
     event = not first and (n == 0 or n >= 2)
-    sigma = tag_sigma(I, F) if event and mode != NO_TIMING else 0.0
-    if mode != NO_TIMING:
-        _time_read(I, F, tau, k, mode)
+    if mode != NO_TIMING:  # repeats and misses are judged by the spate tracker (clock_line)
+        time_read(I, F, tau, k, mode)
     if wrapped:
         I[L.C_WRAPS] += 1
-    if event:
-        if n <= 2:  # sawtooth wraps: one repeat (or one miss) net each; gaps do not count
-            I[L.I_NET] += 1 if n == 0 else -1
-            I[L.I_NET_HI] = max(I[L.I_NET_HI], I[L.I_NET])
-            I[L.I_NET_LO] = min(I[L.I_NET_LO], I[L.I_NET])
-        if mode != NO_TIMING:
-            _event_check(I, F, n, sigma)
+    if event and n <= 2:  # sawtooth wraps: one repeat (or one miss) net each; gaps do not count
+        I[L.I_NET] += 1 if n == 0 else -1
+        I[L.I_NET_HI] = max(I[L.I_NET_HI], I[L.I_NET])
+        I[L.I_NET_LO] = min(I[L.I_NET_LO], I[L.I_NET])
     if n == 0:
         I[L.C_REPEATED] += 1
         F[L.F_TAU_A_LAST] = tau
         for g in range(ng):
             if F[dp + g] != F[da + g]:
                 I[L.C_REPEAT_MISMATCH] += 1
-                _raise(I, F, tau)
+                raise_anomaly(I, F, tau)
                 break
         return m
     if n >= 2:
         I[L.C_MISSING] += n - 1
         if n - 1 <= F[L.P_MAX_BRIDGE]:
             m = _release_bridges(I, F, OF, OI, m, n, k)
-        else:
+        else:  # a dropout consistent in tt and bus time: the engine flags GYRO_GAP from dt
             I[L.C_GAPS] += 1
-            _raise(I, F, tau)
     for g in range(ng):
         OF[m, O_DTH + g] = F[dp + g]
         F[da + g] = F[dp + g]
@@ -244,25 +218,25 @@ def _process(I, F, OF, OI, has_n, tau_n, tt_n, m):
     if ok_tt:
         if ok_an and n <= n_an:  # P's bus time is the outlier: keep the sample, not the timing,
             I[L.C_TBUS_GLITCHES] += 1  # and tag it as read at the bus tick before N
-            _raise(I, F, tau_p)
+            raise_anomaly(I, F, tau_p)
             F[L.F_TAU_P] = tau_n - F[L.P_BUS_T]
             return _accept(I, F, OF, OI, n, NO_TIMING, wrapped, m)
         if ok_an:  # P's tt runs ahead of the next read's: a tt glitch
             I[L.C_TT_GLITCHES] += 1
-            _raise(I, F, tau_p)
+            raise_anomaly(I, F, tau_p)
             return m
         if ok_pn and not ok_reg:  # the bus clock jumped: same samples, new time line
             I[L.C_TIME_JUMPS] += 1
-            _raise(I, F, tau_p)
+            raise_anomaly(I, F, tau_p)
             return _accept(I, F, OF, OI, n, REACQUIRE, wrapped, m)
         if not ok_pn:  # unresolved: trust the sequence number, not the time
             I[L.C_TBUS_GLITCHES] += 1
-            _raise(I, F, tau_p)
+            raise_anomaly(I, F, tau_p)
             F[L.F_TAU_P] = tau_a + F[L.P_BUS_T] * max(n, 1)
             return _accept(I, F, OF, OI, n, NO_TIMING, wrapped, m)
     elif ok_an or not ok_pn:  # a read whose tt fits neither neighbour: drop it
         I[L.C_TT_GLITCHES] += 1
-        _raise(I, F, tau_p)
+        raise_anomaly(I, F, tau_p)
         return m
     # the tt sequence restarts at P (counter reset or jump): re-anchor the index from time
     n = _n_from_time(I, F, tau_p)
@@ -271,7 +245,7 @@ def _process(I, F, OF, OI, has_n, tau_n, tt_n, m):
         n = max(n, tt_p // tick + 1)
     else:
         I[L.C_TT_JUMPS] += 1
-    _raise(I, F, tau_p)
+    raise_anomaly(I, F, tau_p)
     mode = TIMING if ok_reg and tau_p > tau_a else REACQUIRE
     return _accept(I, F, OF, OI, n, mode, False, m)
 
@@ -310,7 +284,7 @@ def clock_run(I, F, t_bus, tt, dth, status, j0, final, OF, OI):
         q = tt[j]
         if not np.isfinite(tau) or q < 0 or q >= wrap:
             I[L.C_REJECTED] += 1
-            _raise(I, F, F[L.F_TAU_NOW])
+            raise_anomaly(I, F, F[L.F_TAU_NOW])
             continue
         if I[L.I_HAVE_P]:
             m = _next(I, F, OF, OI, tau, q, m)

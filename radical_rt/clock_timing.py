@@ -1,10 +1,13 @@
-"""Numba kernels of the SIRU clock's timing: the set-membership estimate of the sample-time line.
+"""Numba kernels of the SIRU clock's timing: the coarse polygon and the choice of the line in use.
 
 The feasible lines ``t_k = a + b k`` form a convex polygon (:mod:`radical_rt.clock_poly`) in
 ``(x, y)``: ``x`` [s] is the offset from the nominal line ``tau_anchor + T (k - k_anchor)`` at the
 reference sample ``k_ref``, ``y`` [s per N_s samples] the slope deviation. Each read of sample k
-at bus time tau adds ``t_k <= tau + delta`` and ``t_{k+1} >= tau - delta``; the reconstructed
-time is the line through the polygon's centroid. See docs/clock.md. State layout:
+at bus time tau adds ``t_k <= tau + delta`` and ``t_{k+1} >= tau - delta``, with a margin delta
+wide enough for the read jitter (reads are tagged with their bus cycle, not their instant). The
+polygon is the coarse estimate: it gives the line before the first sawtooth crossing and the prior
+slope at it. From the first crossing on, the fine line of :mod:`radical_rt.clock_line` (a Kalman
+filter on the crossings) is the line in use. See docs/clock.md. State layout:
 :mod:`radical_rt.clock_layout`.
 """
 
@@ -16,6 +19,18 @@ import numpy as np
 
 from radical_rt import clock_layout as L
 from radical_rt._jit import kernel
+from radical_rt.clock_line import (
+    CROSSING,
+    base_time,
+    line_crossing,
+    line_lose_phase,
+    line_select,
+    line_shear,
+    line_var,
+    period,
+    raise_anomaly,
+    spate_read,
+)
 from radical_rt.clock_poly import (
     poly_box,
     poly_centroid,
@@ -33,31 +48,21 @@ REREF = 1000
 
 
 @kernel
-def _base(I, F, k):
-    """Nominal line at sample k (the polygon's x is relative to it at k_ref)."""
-    return F[L.F_TAU_ANCHOR] + F[L.P_T] * (k - I[L.I_K_ANCHOR])
-
-
-@kernel
 def line_time(I, F, k):
-    """Reconstructed true time of sample k on the bus time line (centroid line) [s]."""
+    """Reconstructed true time of sample k on the bus time line (the line in use) [s]."""
     d = k - I[L.I_K_REF]
-    return _base(I, F, I[L.I_K_REF]) + F[L.F_CX] + (F[L.F_CY] / F[L.P_NS] + F[L.P_T]) * d
-
-
-@kernel
-def period(F):
-    """Estimated true sample period [s]."""
-    return F[L.P_T] + F[L.F_CY] / F[L.P_NS]
+    return base_time(I, F, I[L.I_K_REF]) + F[L.F_CX] + (F[L.F_CY] / F[L.P_NS] + F[L.P_T]) * d
 
 
 @kernel
 def tag_sigma(I, F):
-    """1-sigma reconstructed-time uncertainty of the last accepted sample [s]: uniform over the
-    polygon's core (its extent at that sample less the two jitter margins) plus a jitter floor;
-    T/sqrt(12) before acquisition."""
+    """1-sigma reconstructed-time uncertainty of the last accepted sample [s]: the fine line's once
+    it has a phase; before, uniform over the polygon's core (its extent at that sample less the two
+    jitter margins) plus a jitter floor; T/sqrt(12) before acquisition."""
     if I[L.I_ACQ] == 0:
         return F[L.P_T] / math.sqrt(12.0)
+    if I[L.I_KAL]:
+        return math.sqrt(line_var(I, F, I[L.I_K_A], F[L.F_TAU_NOW]))
     g = (I[L.I_K_A] - I[L.I_K_REF]) / F[L.P_NS]
     lo = np.inf
     hi = -np.inf
@@ -72,23 +77,19 @@ def tag_sigma(I, F):
 @kernel
 def _centroid(I, F):
     cx, cy = poly_centroid(F, L.OX, L.OY, I[L.I_NV])
-    F[L.F_CX] = cx
-    F[L.F_CY] = cy
+    F[L.F_PCX] = cx
+    F[L.F_PCY] = cy
     lo, hi = poly_extent(F, L.OY, I[L.I_NV])
     F[L.F_Y_LO] = lo
     F[L.F_Y_HI] = hi
-
-
-@kernel
-def _raise(I, F, tau):
-    """Count an anomaly event and hold CLOCK_ANOMALY for the configured time."""
-    I[L.C_ANOMALIES] += 1
-    F[L.F_ANOM_UNTIL] = max(F[L.F_ANOM_UNTIL], tau + F[L.P_HOLD])
+    line_select(I, F)
 
 
 @kernel
 def _acquire(I, F, tau, k):
-    """Start (or restart) the phase: sample k was read at tau; the slope range is kept."""
+    """Start (or restart) the phase: sample k was read at tau; the slope range (and the fine
+    line's frequency) is kept."""
+    line_lose_phase(I, F, 0.0)
     t = F[L.P_T]
     F[L.F_DELTA] = F[L.P_DELTA]  # a margin widened for the old phase starts afresh
     d = F[L.F_DELTA]
@@ -118,12 +119,14 @@ def _recentre(I, F, k):
     d = k - I[L.I_K_REF]
     if d == 0:
         return
-    dx = (_base(I, F, I[L.I_K_REF]) - _base(I, F, k)) + F[L.P_T] * d
+    dx = (base_time(I, F, I[L.I_K_REF]) - base_time(I, F, k)) + F[L.P_T] * d
     g = d / F[L.P_NS]
     for i in range(I[L.I_NV]):
         F[L.OX + i] += dx + g * F[L.OY + i]
-    F[L.F_CX] += dx + g * F[L.F_CY]
+    F[L.F_PCX] += dx + g * F[L.F_PCY]
+    line_shear(I, F, dx, g)
     I[L.I_K_REF] = k
+    line_select(I, F)
 
 
 @kernel
@@ -133,7 +136,7 @@ def _constrain(I, F, tau, k):
     constraint is not applied."""
     _recentre(I, F, k)
     d = F[L.F_DELTA]
-    r0 = tau - _base(I, F, k)
+    r0 = tau - base_time(I, F, k)
     nv, c1, v1, c2, v2 = poly_clip2(F, L.OX, L.OY, I[L.I_NV], r0 + d, 1.0 / F[L.P_NS],
                                     F[L.P_T] - r0 + d, L.WX, L.WY)
     I[L.I_NV] = nv
@@ -143,10 +146,10 @@ def _constrain(I, F, tau, k):
 
 
 @kernel
-def _time_read(I, F, tau, k, mode):
-    """Fold one read (sample k at bus time tau) into the timing polygon. The common case (both
-    constraints redundant) is one scan of the vertices; the reference sample moves only when the
-    polygon is cut or every REREF samples."""
+def time_read(I, F, tau, k, mode):
+    """Fold one read (sample k at bus time tau) into the timing polygon and the spate tracker of
+    the fine line. The common case (both constraints redundant, no spate) is one scan of the
+    vertices; the reference sample moves only when the polygon is cut or every REREF samples."""
     if mode == REACQUIRE or I[L.I_ACQ] == 0:
         _acquire(I, F, tau, k)
     if k - I[L.I_K_REF] > REREF or k < I[L.I_K_REF]:
@@ -155,7 +158,7 @@ def _time_read(I, F, tau, k, mode):
         _inflate(I, F, tau)
     elif tau < F[L.F_LAST_INFL]:
         F[L.F_LAST_INFL] = tau
-    r0 = tau - _base(I, F, k)
+    r0 = tau - base_time(I, F, k)
     g = (k - I[L.I_K_REF]) / F[L.P_NS]
     g1 = g + 1.0 / F[L.P_NS]
     m1 = -np.inf
@@ -181,14 +184,17 @@ def _time_read(I, F, tau, k, mode):
         I[L.I_CONSEC_REJ] += 1
         F[L.F_MAX_VIOL] = max(F[L.F_MAX_VIOL], viol)
         if viol > F[L.P_GROSS]:
-            _raise(I, F, tau)
+            raise_anomaly(I, F, tau)
         if I[L.I_CONSEC_REJ] >= F[L.P_RELOCK]:
             I[L.C_RELOCKS] += 1
-            _raise(I, F, tau)
+            raise_anomaly(I, F, tau)
             _acquire(I, F, tau, k)
             _constrain(I, F, tau, k)
     else:
         I[L.I_CONSEC_REJ] = 0
+    code, k_star, t_star, var_z = spate_read(I, F, tau, k)
+    if code == CROSSING:
+        line_crossing(I, F, k_star, t_star, var_z)
     F[L.F_E_LAST] = tau - line_time(I, F, k)
 
 

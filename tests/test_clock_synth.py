@@ -56,7 +56,8 @@ def test_naive_baseline_is_the_sawtooth(result):
 def test_reconstruction_once_locked_beats_naive_by_50x(result):
     rc = result["reconstruct"]
     lk = rc["locked"]
-    assert lk["n"] > 0.15 * rc["all"]["n"]
+    # locked from the second sawtooth crossing on: at +30 ppm the wraps come at 189 and 523 s
+    assert lk["n"] > 0.10 * rc["all"]["n"]
     assert lk["rms_s"] < NAIVE_STD / 50
     assert lk["rms_s"] < 10e-6 and lk["max_s"] < 50e-6  # measured: ~1–3 µs RMS, <20 µs max
     assert rc["all"]["max_s"] <= 0.0051  # never worse than the middle of the band
