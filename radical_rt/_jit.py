@@ -16,7 +16,9 @@ kernels of other modules (``fastpath.fast_release`` calls into ``propagate``, ``
 modules it went on running the *old* callee from its cache while direct callers ran the new one.
 :func:`_drop_stale_cache` therefore treats the cached kernels of a source directory as one unit:
 a fingerprint of the Numba version, ``_POLICY`` and the contents of every kernel module (a
-``.py`` file that declares kernels) of ``radical_rt/`` and of the kernel's own directory is kept in ``__pycache__/kernels.stamp``;
+``.py`` file that declares kernels) of ``radical_rt/`` and of the kernel's own directory, and of
+every sibling module they import (directly or not: a layout module's constants are frozen into
+the compiled code too), is kept in ``__pycache__/kernels.stamp``;
 when it changes, every cached kernel there (``*.nbi``, ``*.nbc``) is deleted before the first
 kernel of that directory is declared, so everything is compiled afresh. (This covers Numba's
 default cache location next to the sources; with ``NUMBA_CACHE_DIR`` set, clear that directory
@@ -26,6 +28,7 @@ after editing kernels.)
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 
 import numba
@@ -36,16 +39,34 @@ _PACKAGE = Path(__file__).resolve().parent
 _checked: set[Path] = set()
 
 
+_IMPORT = re.compile(rb"^\s*(?:from|import)\s+([^\n]*)", re.MULTILINE)
+
+
+def _kernel_sources(d: Path) -> list[Path]:
+    """The kernel modules of directory d and the sibling modules they import, transitively."""
+    texts = {src.stem: src.read_bytes() for src in d.glob("*.py")}
+    todo = [stem for stem, t in texts.items()
+            if b"@kernel" in t or b"@inline_kernel" in t or b"njit(" in t]
+    keep: set[str] = set()
+    while todo:
+        stem = todo.pop()
+        if stem in keep:
+            continue
+        keep.add(stem)
+        for line in _IMPORT.findall(texts[stem]):
+            names = (w.decode() for w in re.findall(rb"\w+", line))
+            todo += [name for name in names if name in texts]
+    return [d / f"{stem}.py" for stem in sorted(keep)]
+
+
 def _fingerprint(directory: Path) -> str:
-    """Hash of the Numba version, the policy and the kernel modules of the package and of
-    ``directory``."""
+    """Hash of the Numba version, the policy, and the kernel modules of the package and of
+    ``directory`` with the sibling modules they import."""
     h = hashlib.sha256(f"{numba.__version__}|{sorted(_POLICY.items())}".encode())
     for d in sorted({_PACKAGE, directory}):
-        for src in sorted(d.glob("*.py")):
-            text = src.read_bytes()
-            if b"@kernel" in text or b"@inline_kernel" in text or b"njit(" in text:
-                h.update(src.name.encode())
-                h.update(text)
+        for src in _kernel_sources(d):
+            h.update(src.name.encode())
+            h.update(src.read_bytes())
     return h.hexdigest()
 
 

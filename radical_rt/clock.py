@@ -1,20 +1,23 @@
 """Online SIRU clock reconstruction and repeat/miss repair (CONTRACT §1.5, notes §13).
 
 The SIRU samples on its own oscillator; the bus reads the latest completed sample at its own
-100 Hz ticks and tags it with the read's bus time, so the tag is late by a 0–10 ms sawtooth and
-reads near each sawtooth wrap repeat or skip samples. :class:`SiruClock` turns the stream of
+100 Hz ticks and tags it with a bus time (the read's instant, or its bus cycle's tick with the read
+an unknown offset earlier), so the tag is late by a 0–10 ms sawtooth and reads near each sawtooth
+wrap repeat or skip samples. :class:`SiruClock` turns the stream of
 reads into the stream of distinct samples the filter needs: repeats dropped, misses bridged (or a
 gap declared), each sample given its reconstructed true time ``t`` on the bus time line and its
 true interval ``dt``.
 
-Time reconstruction (``mode="reconstruct"``) is a set-membership estimate of the line
-``t_k = a + b k`` over the unwrapped sample index k: every read of sample k at bus time τ says
-``t_k <= τ`` and ``t_{k+1} > τ`` (each within a jitter margin), a pair of half-planes in the
-(offset, slope) plane. Their intersection is a convex polygon that stays a band of width T until
-the sawtooth first wraps and then collapses around the true line; ``t`` is the line through the
-polygon's centroid. Drift is tracked by slowly inflating the polygon. ``mode="naive"`` tags each
-sample with the bus time of its first read (the baseline). Method and measured accuracy:
-docs/clock.md.
+Time reconstruction (``mode="reconstruct"``) estimates the line ``t_k = a + b k`` over the
+unwrapped sample index k twice. Coarsely, every read of sample k at bus time τ says ``t_k <= τ``
+and ``t_{k+1} > τ`` (within a margin wide enough for read jitter), half-planes whose intersection
+is a convex polygon (:mod:`radical_rt.clock_timing`): a band of width T until the sawtooth first
+wraps. Finely, each sawtooth wrap's spate of repeats and misses is located by counting
+(:mod:`radical_rt.clock_line`), and a Kalman filter fits the line through these crossings, with
+an honest σ; it is the line in use from the first crossing on. A constant read offset before the
+tag is not observable and stays in the line (the engine's latency state takes it).
+``mode="naive"`` tags each sample with the bus time of its first read (the baseline). Method and
+measured accuracy: docs/clock.md.
 
 The per-read loop is one Numba kernel (:mod:`radical_rt.clock_kernels`); this class holds its
 small state arrays, so the output does not depend on how the reads are split into :meth:`push`
@@ -62,11 +65,12 @@ class ClockConfig:
 
     Sequence: ``period_s``, ``ticks_per_sample`` and ``wrap`` describe the time tag (CONTRACT
     §1.5). Repair: at most ``max_bridge`` consecutive missing samples are bridged (interpolated
-    increments, variance from ``bridge_accel_sigma_rad_s2``); longer runs are gaps. Timing:
-    ``jitter_margin_s`` is the tolerance of every read constraint (bigger than the sample-time
-    jitter plus tag noise; precision once locked is much finer, see docs/clock.md), the polygon
-    grows by ``phase_wander_s_per_s`` and ``freq_wander_per_s`` to follow drift, and the prior
-    frequency offset range is ``freq_offset_ppm ± freq_offset_max_ppm``.
+    increments, variance from ``bridge_accel_sigma_rad_s2``); longer runs are gaps. Coarse
+    timing: ``jitter_margin_s`` is the tolerance of every polygon constraint (wider than the read
+    jitter and offset of cycle-tagged reads), the polygon grows by ``phase_wander_s_per_s`` and
+    ``freq_wander_per_s`` to follow drift, and the prior frequency offset range is
+    ``freq_offset_ppm ± freq_offset_max_ppm``. Fine timing (``line_*``, ``spate_*``): the Kalman
+    line on the sawtooth crossings, whose precision is jitter-limited (docs/clock.md).
     """
 
     period_s: float = 0.01
@@ -101,7 +105,6 @@ class ClockConfig:
     time_tol_s: float = 2e-3  # tt-vs-bus-time consistency tolerance beyond one period
     max_tt_jump_samples: int = 400000  # a tt step beyond this is not a run of misses
     reset_window_ticks: int = 100_000_000  # a tt restart below this is a counter reset
-    wrap_window_s: float = 1e-3  # repeats/misses farther than this from the wrap: unexplained
     gross_violation_s: float = 1e-3  # a rejected read beyond this raises CLOCK_ANOMALY
     relock_after_reads: int = 50  # consecutive rejected reads before re-acquiring the phase
     anomaly_hold_s: float = 1.0  # CLOCK_ANOMALY stays raised this long after an event
@@ -140,7 +143,6 @@ class ClockConfig:
         p[L.P_MAX_BRIDGE] = self.max_bridge
         p[L.P_SIG_ALPHA] = self.bridge_accel_sigma_rad_s2
         p[L.P_HOLD] = self.anomaly_hold_s
-        p[L.P_WIN] = self.wrap_window_s
         p[L.P_GROSS] = self.gross_violation_s
         p[L.P_RELOCK] = self.relock_after_reads
         p[L.P_RESET_TICKS] = self.reset_window_ticks

@@ -36,6 +36,20 @@ def test_cache_dropped_when_a_kernel_module_changes(tmp_path, monkeypatch):
     _jit._drop_stale_cache(str(mod))  # a module without kernels does not count
     assert (cache / "kern.f-1.py311.nbi").exists()
 
+    # a module the kernel module imports (constants frozen into its code) counts
+    (tmp_path / "layout.py").write_text("N = 3\n")
+    mod.write_text("from pkg import layout as L\n@kernel\ndef f(x):\n    return x + L.N\n")
+    _fresh(monkeypatch)
+    _jit._drop_stale_cache(str(mod))
+    (cache / "kern.f-1.py311.nbi").write_text("fresh index")
+    stamp = (cache / "kernels.stamp").read_text()
+    (tmp_path / "layout.py").write_text("N = 4\n")
+    _fresh(monkeypatch)
+    _jit._drop_stale_cache(str(mod))
+    assert not (cache / "kern.f-1.py311.nbi").exists()
+    assert (cache / "kernels.stamp").read_text() != stamp
+    stamp = (cache / "kernels.stamp").read_text()
+
     mod.write_text("@kernel\ndef f(x):\n    return x + 1\n")
     _fresh(monkeypatch)
     _jit._drop_stale_cache(str(mod))
