@@ -188,8 +188,7 @@ def markdown(report: dict) -> str:
             "max z | conv | run s | pass |")
     lines = [head, "|" + "---|" * 17]
     for r in report["rows"]:
-        c = Case(**{k: (tuple(tuple(x) if isinstance(x, list) else x for x in v)
-                        if isinstance(v, list) else v) for k, v in r["case"].items()})
+        c = Case.from_dict(r["case"])
         if "error" in r:
             lines.append(f"| {c.name} | {c.tag_mode} | | | | | error: {r['error']} |" + " |" * 10)
             continue

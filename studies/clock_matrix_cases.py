@@ -74,6 +74,14 @@ class Case:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, d: dict) -> Case:
+        """The inverse of :meth:`to_dict`, also after a JSON round trip (lists → tuples)."""
+        d = dict(d)
+        d["resets_s"] = tuple(d.get("resets_s", ()))
+        d["gaps"] = tuple(tuple(g) for g in d.get("gaps", ()))
+        return cls(**d)
+
 
 def scenario(case: Case) -> dict:
     """The synth scenario (TOML layout, as a mapping) of a case."""

@@ -108,8 +108,8 @@ def match_truth(tt_out: np.ndarray, tt_true: np.ndarray) -> np.ndarray:
     return idx
 
 
-def _rms(x: np.ndarray) -> float | None:
-    return float(np.sqrt(np.mean(x * x))) if x.size else None
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
 
 
 def timeline(run: dict, tt_true: np.ndarray, t_true: np.ndarray) -> dict:
@@ -156,17 +156,18 @@ def flag_seconds(out_path: str | Path, t_end: float) -> tuple[dict[str, float], 
         for _topic, _ns, data in r.iter_raw(topics=["/fault"]):
             m = msgpack.unpackb(data, raw=False)
             changes.append((float(m["t"]), int(m["flags"])))
-    secs = {f.name: 0.0 for f in Flag}
-    rises = {f.name: 0 for f in Flag}
+    names = {f: str(f.name) for f in Flag}
+    secs = dict.fromkeys(names.values(), 0.0)
+    rises = dict.fromkeys(names.values(), 0)
     spans, prev = [], 0
     for i, (t, fl) in enumerate(changes):
         t_next = changes[i + 1][0] if i + 1 < len(changes) else t_end
         spans.append((t, max(t_next, t), fl))
         for f in Flag:
             if fl & f:
-                secs[f.name] += max(t_next - t, 0.0)
+                secs[names[f]] += max(t_next - t, 0.0)
                 if not prev & f:
-                    rises[f.name] += 1
+                    rises[names[f]] += 1
         prev = fl
     return secs, rises, spans
 

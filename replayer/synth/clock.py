@@ -145,6 +145,7 @@ class BusReads:
         self.dist, self.dof = tm["read_jitter_dist"], tm["read_jitter_dof"]
         self.clip = jitter_clip_s(siru)
         self.late_prob, self.late_max = tm["late_read_prob"], tm["late_read_max_s"]
+        self.late_rng: np.random.Generator | None = None
         if self.dist != "gaussian" or self.late_prob > 0:
             if streams is None:
                 raise ValueError("BusReads: these read-timing knobs need the named streams")
@@ -172,7 +173,7 @@ class BusReads:
         tick = self.t_start + j * self.P
         t = tick - self.offset - self._jitter(j.size) if self.tick_mode else tick + self._jitter(j.size)
         late = np.zeros(j.size, dtype=bool)
-        if self.late_prob > 0:
+        if self.late_rng is not None:
             u = self.late_rng.random((j.size, 2))
             late = u[:, 0] < self.late_prob
             t = t + np.where(late, u[:, 1] * self.late_max, 0.0)
