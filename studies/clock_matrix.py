@@ -177,6 +177,13 @@ def _f(v, fmt: str, none: str = "—") -> str:
     return none if v is None else format(v, fmt)
 
 
+def _lock_cell(r: dict) -> str:
+    """First lock time, then the re-lock delays after each injected reset / gap end (s)."""
+    cell = _f(r["t_lock_s"], ".0f", "never")
+    rel = [_f(s["delay_s"], ".0f", "never") for s in r["lock_segments"][1:]]
+    return cell + (f"; relock {', '.join(rel)}" if rel else "")
+
+
 def _mark(ok: bool) -> str:
     return "✓" if ok else "✗"
 
@@ -197,7 +204,7 @@ def markdown(report: dict) -> str:
         lines.append(
             f"| {c.name} | {c.tag_mode} | {c.offset_s * 1e3:g} | {c.jitter_label()} | "
             f"{c.eps_ppm:+g} | {c.disc_label()} | "
-            f"{_f(r['t_lock_s'], '.0f', 'never')} ({c.lock_limit_s:.0f}) {_mark(a['lock'])} | "
+            f"{_lock_cell(r)} ({c.lock_limit_s:.0f}) {_mark(a['lock'])} | "
             f"{r['freq_err_ppm']:+.3f} {_mark(a['freq'])} | "
             f"{_f(r['locked_rms_us'], '.1f')} / {_f(r['jitter_us'], '.1f')} / "
             f"{_f(r['offset_us'], '.0f')} {_mark(a['timeline'])} | "
