@@ -224,3 +224,18 @@ def test_print_default_lists_the_timing_keys():
         assert f"# {k} = " in text
     assert load_scenario({"base": "2006216", "siru": {"read_jitter_s": 1e-4,
                                                       "read_jitter_dist": "student_t"}})
+
+
+def test_tick_archive_does_not_depend_on_the_chunk_size(tmp_path):
+    siru = {"tag_mode": "tick", "read_offset_s": 2e-4, "read_jitter_s": 1e-4,
+            "read_jitter_dist": "student_t", "late_read_prob": 0.01, "late_read_max_s": 2e-3,
+            "eps_ppm": -250.0}
+    sc = {"base": "2006216", "duration_s": 40.0, "siru": siru,
+          "faults": [{"kind": "gap", "start_s": 12.0, "end_s": 13.5}]}
+    a = synthesize({**sc, "output": {"chunk_s": 60.0}}, tmp_path / "a.mcap")
+    b = synthesize({**sc, "output": {"chunk_s": 1.3}}, tmp_path / "b.mcap")
+    ra, rb = ArchiveReader(a.path), ArchiveReader(b.path)
+    assert list(ra.iter_raw()) == list(rb.iter_raw())
+    assert ra.scenario["siru_timing"] == rb.scenario["siru_timing"]
+    assert a.truth_counts == b.truth_counts and a.timing == b.timing
+    assert a.timing[0]["n_late_reads"] > 0 and a.timing[0]["n_clipped_reads"] > 0
