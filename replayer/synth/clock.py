@@ -3,18 +3,31 @@
 SIRU sample k is taken at true bus time ``t_k = t_start + phase + k·T·(1+ε) + jitter_k`` (k ≥ 0;
 k = −1 only bounds sample 0's interval). Its counter ``tt_k = (tt0 + 10000·k) mod 2**32`` counts
 SIRU oscillator ticks; a counter reset at time r restarts it at 0 for the first sample with
-``t_k ≥ r``. The bus reads at ``τ_j = t_start + j·T_bus + jitter_j`` (j ≥ 1) and gets the latest
-sample with ``t_k ≤ τ_j``. Jitters are Gaussian truncated at ±4σ, drawn in index order from their
-own streams, so the result does not depend on how the run is chunked. Times in s.
+``t_k ≥ r``. The bus reads at its ticks j ≥ 1 and gets the latest sample with ``t_k ≤`` the read
+instant. With ``tag_mode = "read"`` (default) the read instant is ``τ_j = t_start + j·T_bus +
+jitter_j`` and is its own tag ``t_bus = τ_j``; with ``tag_mode = "tick"`` the tag is the nominal
+tick ``t_bus = t_start + j·T_bus`` and the read instant is ``tick − read_offset − jitter_j``,
+clipped so that it is never later than its tag (CONTRACT §1.5: ``t_bus ≥ t_k``). Occasional late
+reads (probability ``late_read_prob``) are delayed by U(0, ``late_read_max_s``), then clipped the
+same way in tick mode. The sample jitter is Gaussian truncated at ±4σ; the read jitter is
+Gaussian (±4σ), uniform (same 1σ) or Student-t (same 1σ, ±min(20σ, T_bus/5)). Every draw comes
+in index order from its own stream, so the result does not depend on how the run is chunked.
+Times in s.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from radical_rt.conventions import SIRU_TT_TICK_S, SIRU_TT_WRAP
+
+from .schema import siru_timing
+
+#: Student-t read jitter: clipped at this many σ (and at bus_period/5).
+STUDENT_T_CLIP_SIGMA = 20.0
 
 
 def truncated_normal(rng: np.random.Generator, sigma: float, n: int) -> np.ndarray:
@@ -92,23 +105,86 @@ class SiruClock:
         return tt, reset
 
 
-class BusReads:
-    """Bus read times τ_j (j ≥ 1) for consecutive index ranges; ``rng`` is the read-jitter stream."""
+class Reads(NamedTuple):
+    """Bus reads (n,): tag ``t_bus`` (s), read instant ``t_read`` (s, ≤ t_bus in tick mode),
+    ``late`` (a late read) and ``clipped`` (tick mode: the read instant was moved to its tag)."""
 
-    def __init__(self, siru: dict, t_start: float, rng: np.random.Generator):
+    t_bus: np.ndarray
+    t_read: np.ndarray
+    late: np.ndarray
+    clipped: np.ndarray
+
+
+def jitter_clip_s(siru: dict) -> float:
+    """Largest |read jitter| (s) of the scenario's distribution: 4σ (Gaussian), √3σ (uniform),
+    min(20σ, bus_period/5) (Student-t)."""
+    sigma, dist = siru["read_jitter_s"], siru_timing(siru)["read_jitter_dist"]
+    if dist == "uniform":
+        return float(np.sqrt(3.0) * sigma)
+    if dist == "student_t":
+        return min(STUDENT_T_CLIP_SIGMA * sigma, siru["bus_period_s"] / 5.0)
+    return 4.0 * sigma
+
+
+class BusReads:
+    """Bus reads for consecutive index ranges j ≥ 1 (see the module docstring).
+
+    ``rng`` is the Gaussian read-jitter stream (``siru.read_jitter``, the only stream the
+    defaults use); ``streams(name)`` gives the other named streams (``siru.read_jitter.uniform``,
+    ``siru.read_jitter.student_t``, ``siru.late_read``), needed only when those knobs are set.
+    """
+
+    def __init__(self, siru: dict, t_start: float, rng: np.random.Generator,
+                 streams: Callable[[str], np.random.Generator] | None = None):
         self.P = siru["bus_period_s"]
         self.sigma = siru["read_jitter_s"]
         self.t_start = t_start
+        tm = siru_timing(siru)
+        self.tick_mode = tm["tag_mode"] == "tick"
+        self.offset = tm["read_offset_s"]
+        self.dist, self.dof = tm["read_jitter_dist"], tm["read_jitter_dof"]
+        self.clip = jitter_clip_s(siru)
+        self.late_prob, self.late_max = tm["late_read_prob"], tm["late_read_max_s"]
+        self.late_rng: np.random.Generator | None = None
+        if self.dist != "gaussian" or self.late_prob > 0:
+            if streams is None:
+                raise ValueError("BusReads: these read-timing knobs need the named streams")
+            rng = streams(f"siru.read_jitter.{self.dist}") if self.dist != "gaussian" else rng
+            self.late_rng = streams("siru.late_read") if self.late_prob > 0 else None
         self.rng = rng
         self._j_next = 1
 
-    def times(self, j0: int, j1: int) -> np.ndarray:
-        """τ_j for j in [max(j0, 1), j1) (s); ranges must be requested in order, without holes."""
+    def _jitter(self, n: int) -> np.ndarray:
+        """n read-jitter draws (s), 1σ = read_jitter_s."""
+        if self.dist == "uniform":
+            return self.rng.uniform(-self.clip, self.clip, n)
+        if self.dist == "student_t":
+            scale = self.sigma / np.sqrt(self.dof / (self.dof - 2.0))
+            return np.clip(self.rng.standard_t(self.dof, n) * scale, -self.clip, self.clip)
+        return truncated_normal(self.rng, self.sigma, n)
+
+    def read(self, j0: int, j1: int) -> Reads:
+        """The reads of ticks j in [max(j0, 1), j1); ranges must be requested in order, without
+        holes."""
         j0 = max(j0, 1)
         assert j0 == self._j_next, "bus reads must be requested in order"
         self._j_next = max(j1, j0)
         j = np.arange(j0, j1)
-        return self.t_start + j * self.P + truncated_normal(self.rng, self.sigma, j.size)
+        tick = self.t_start + j * self.P
+        t = tick - self.offset - self._jitter(j.size) if self.tick_mode else tick + self._jitter(j.size)
+        late = np.zeros(j.size, dtype=bool)
+        if self.late_rng is not None:
+            u = self.late_rng.random((j.size, 2))
+            late = u[:, 0] < self.late_prob
+            t = t + np.where(late, u[:, 1] * self.late_max, 0.0)
+        if not self.tick_mode:
+            return Reads(t, t, late, np.zeros(j.size, dtype=bool))
+        clipped = t > tick
+        return Reads(tick, np.minimum(t, tick), late, clipped)
+
+    def times(self, j0: int, j1: int) -> np.ndarray:
+        """Read instants (s) of ticks j in [max(j0, 1), j1) (see :meth:`read`)."""
+        return self.read(j0, j1).t_read
 
 
 def latest_sample(sample_t: np.ndarray, tau: np.ndarray) -> np.ndarray:

@@ -19,7 +19,18 @@ import numpy as np
 from radical_rt.conventions import SI_PER_PAPER_UNIT
 
 from . import maneuver
-from .schema import N_GYRO, ScenarioError, check_tree, defaults, merge, to_toml
+from .schema import (
+    JITTER_DISTS,
+    N_GYRO,
+    TAG_MODES,
+    TIMING_DEFAULTS,
+    ScenarioError,
+    check_tree,
+    defaults,
+    merge,
+    siru_timing,
+    to_toml,
+)
 
 TABLES_PATH = Path("/work/shared/data/messenger_tables.json")
 _PKG_TABLES = Path(__file__).with_name("messenger_tables.json")
@@ -86,9 +97,16 @@ class Scenario:
             {"axis": x.axis, "angle_deg": x.angle_deg, "hold_s": x.hold_s} for x in moves]},
             "truth": truth}
 
-    def to_toml(self) -> str:
-        """The full scenario as TOML (optional keys commented out with their resolved values)."""
-        return to_toml(self.cfg, self.resolved_optionals())
+    def to_toml(self, timing_defaults: bool = False) -> str:
+        """The full scenario as TOML (optional keys commented out with their resolved values).
+
+        ``timing_defaults`` also lists the unset [siru] bus-read timing keys, commented out with
+        their defaults (``--print-default``; the archive metadata leaves them out, so that
+        archives of scenarios without them keep their bytes)."""
+        resolved = self.resolved_optionals()
+        if timing_defaults:
+            resolved["siru"] = dict(TIMING_DEFAULTS)
+        return to_toml(self.cfg, resolved)
 
 
 def builtin_config(name: str) -> dict:
@@ -184,6 +202,25 @@ def _check_siru(s: dict) -> None:
     for k in ("arw_deg_sqrt_hr", "bias_rw_rad_s_sqrt_s", "quantum_arcsec"):
         _require(s[k] >= 0, f"siru.{k}", "must be ≥ 0")
     _require(s["batch"] >= 1, "siru.batch", "must be ≥ 1")
+    _check_read_timing(s)
+
+
+def _check_read_timing(s: dict) -> None:
+    """The optional bus-read timing keys (docs/scenarios.md, "Bus-read timing")."""
+    tm, bus = siru_timing(s), s["bus_period_s"]
+    _require(tm["tag_mode"] in TAG_MODES, "siru.tag_mode", f"must be one of {', '.join(TAG_MODES)}")
+    _require(tm["read_jitter_dist"] in JITTER_DISTS, "siru.read_jitter_dist",
+             f"must be one of {', '.join(JITTER_DISTS)}")
+    _require(2.0 < tm["read_jitter_dof"] <= 1e6, "siru.read_jitter_dof",
+             "must be in (2, 1e6] (a finite variance, so that read_jitter_s is its 1σ)")
+    _require(0 <= tm["read_offset_s"] <= bus / 5, "siru.read_offset_s", "must be in [0, bus_period_s/5]")
+    _require(tm["read_offset_s"] == 0 or tm["tag_mode"] == "tick", "siru.read_offset_s",
+             "needs tag_mode = 'tick' (with tag_mode = 'read' the tag is the read instant)")
+    _require(0 <= tm["late_read_prob"] <= 1, "siru.late_read_prob", "must be in [0, 1]")
+    _require(0 <= tm["late_read_max_s"] <= bus / 4, "siru.late_read_max_s",
+             "must be in [0, bus_period_s/4]")
+    _require(tm["late_read_prob"] == 0 or tm["late_read_max_s"] > 0, "siru.late_read_max_s",
+             "must be > 0 when late_read_prob > 0")
 
 
 def _check_trackers(tr: dict, s: dict) -> None:
@@ -241,4 +278,4 @@ def describe_truth(truth: dict[str, np.ndarray]) -> dict[str, list[float]]:
 
 def print_default(name: str | None) -> str:
     """TOML text of a built-in scenario (default 2006216), optional keys shown as comments."""
-    return load_scenario(name or "2006216").to_toml()
+    return load_scenario(name or "2006216").to_toml(timing_defaults=True)

@@ -73,6 +73,18 @@ SPEC: dict[str, Any] = {
         "bias_rw_rad_s_sqrt_s": F("float", 1e-11, "bias random walk, rad/s/√s"),
         "quantum_arcsec": F("float", 0.01, "quantum of the accumulated angle, arcsec (0 = none)"),
         "batch": F("int", 10, "bus reads per /siru message"),
+        # Bus-read timing (optional; absent = the defaults in TIMING_DEFAULTS, so that archives of
+        # scenarios without them stay byte-identical). docs/scenarios.md, "Bus-read timing".
+        "tag_mode": F("str", None, "read tag: 'read' (t_bus = read instant) or 'tick' "
+                                   "(t_bus = nominal bus tick, the read before it); default read"),
+        "read_offset_s": F("float", None, "tick mode: the read precedes its tick by this, s, "
+                                          "[0, bus_period/5]; default 0"),
+        "read_jitter_dist": F("str", None, "read jitter distribution: gaussian (±4σ) | uniform "
+                                           "| student_t (±min(20σ, bus_period/5)); default gaussian"),
+        "read_jitter_dof": F("float", None, "student_t degrees of freedom (> 2); default 3"),
+        "late_read_prob": F("float", None, "probability per read of a late read, [0, 1]; default 0"),
+        "late_read_max_s": F("float", None, "a late read is delayed by U(0, this), s, "
+                                            "[0, bus_period/4]; default 0"),
     },
     "trackers": {
         "st1": F("bool", True, "ST1 on"),
@@ -112,6 +124,19 @@ SPEC: dict[str, Any] = {
     },
     "faults": F("faults", [], "fault injections (see FAULT_KEYS)"),
 }
+
+#: Values of the optional [siru] bus-read timing keys when a scenario does not set them.
+TIMING_DEFAULTS: dict[str, Any] = {"tag_mode": "read", "read_offset_s": 0.0,
+                                   "read_jitter_dist": "gaussian", "read_jitter_dof": 3.0,
+                                   "late_read_prob": 0.0, "late_read_max_s": 0.0}
+TAG_MODES = ("read", "tick")
+JITTER_DISTS = ("gaussian", "uniform", "student_t")
+
+
+def siru_timing(siru: dict) -> dict[str, Any]:
+    """The bus-read timing keys of a [siru] table, with TIMING_DEFAULTS for those not set."""
+    return {k: siru.get(k, v) for k, v in TIMING_DEFAULTS.items()}
+
 
 MOVE_KEYS = {"axis": "str", "angle_deg": "float", "hold_s": "float"}
 

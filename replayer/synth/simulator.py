@@ -25,6 +25,7 @@ from .trackers import Thermal, Tracker, st_from_inertial
 #: Order of topics with equal log times.
 TOPIC_ORDER = {"/siru": 0, "/st1": 1, "/st2": 2, "/temp": 3, "/truth/attitude": 4,
                "/truth/params": 5, "/truth/siru_time": 6}
+TIMING_KEYS = ("n", "lead_sum_ns", "lead_sq_sum_ns2", "n_late", "n_clipped")
 COUNT_KEYS = ("n_samples", "n_reads", "n_repeated", "n_missing", "n_distinct", "n_tt_wraps",
               "n_tt_resets", "st1_sent", "st1_valid", "st2_sent", "st2_valid")
 
@@ -89,6 +90,18 @@ class Layout:
         return np.searchsorted(np.array([b for _, b in self.gaps]), t, side="right")
 
 
+def timing_summary(sums: dict) -> dict:
+    """Read-timing truth of one archive part from :attr:`Simulator.timing`'s sums: reads, mean
+    and standard deviation of the read's lead on its tag ``t_bus − t_read`` (s), late reads and
+    (tick mode) reads clipped to their tag. The leads are summed in whole ns, exactly, so the
+    result does not depend on the chunking."""
+    n = max(sums["n"], 1)
+    var = max(sums["lead_sq_sum_ns2"] * n - sums["lead_sum_ns"] ** 2, 0) / (n * n)
+    return {"n_reads": int(sums["n"]), "read_lead_mean_s": sums["lead_sum_ns"] / n * 1e-9,
+            "read_lead_std_s": math.sqrt(var) * 1e-9,
+            "n_late_reads": int(sums["n_late"]), "n_clipped_reads": int(sums["n_clipped"])}
+
+
 def _runs(*keys: np.ndarray) -> list[slice]:
     """Slices of the maximal runs over which every key (m,) is constant."""
     if keys[0].size == 0:
@@ -113,7 +126,8 @@ class Simulator:
         self.lay = Layout(cfg)
         t0 = cfg["t_start_s"]
         self.clock = SiruClock(cfg["siru"], t0, stream(seed, "siru.sample_jitter"))
-        self.reads = BusReads(cfg["siru"], t0, stream(seed, "siru.read_jitter"))
+        self.reads = BusReads(cfg["siru"], t0, stream(seed, "siru.read_jitter"),
+                              lambda name: stream(seed, name))
         self.profile = sc.profile()
         self.thermal = Thermal(cfg["thermal"], t0, sc.truth["phi2"])
         self.trackers = {}
@@ -133,6 +147,8 @@ class Simulator:
         self.tt_last: int | None = None
         self.k_read_last: list[int | None] = [None] * self.lay.n_parts
         self.counts = [dict.fromkeys(COUNT_KEYS, 0) for _ in range(self.lay.n_parts)]
+        #: per part: bus-read timing truth (TIMING_KEYS; sums, see :func:`timing_summary`)
+        self.timing = [dict.fromkeys(TIMING_KEYS, 0) for _ in range(self.lay.n_parts)]
         self.pending: list[tuple] = []
 
     def chunk(self, j0: int, j1: int) -> list[tuple]:
@@ -161,22 +177,30 @@ class Simulator:
 
     # ------------------------------------------------------------------------------------ SIRU
     def _siru(self, j0: int, j1: int, msgs: list) -> None:
-        tau = self.reads.times(j0, j1)
+        rd = self.reads.read(j0, j1)
+        tau, t_read = rd.t_bus, rd.t_read  # tags; read instants (the same array in read mode)
         if tau.size == 0:
             return
         j = np.arange(j1 - tau.size, j1)
-        smp = self.clock.take_through(float(tau[-1]))
+        smp = self.clock.take_through(float(t_read[-1]))
         if self.full:
             dth, status = self.siru.outputs(smp.t_prev, smp.t)
         else:
             dth, status = np.zeros((smp.k.size, 1)), np.zeros(smp.k.size, dtype=np.int64)
-        self._siru_time(smp, tau, j, msgs)
+        self._siru_time(smp, t_read, tau, j, msgs)
         k_all, t_all, tt_all, d_all, s_all = self._with_last(smp, dth, status)
-        pos = latest_sample(t_all, tau)
+        pos = latest_sample(t_all, t_read)
         ok = (pos >= 0) & self.lay.keep(tau)
         part = self.lay.part(tau)
         for p in range(self.lay.n_parts):
             sel = ok & (part == p)
+            lead = np.round((tau[sel] - t_read[sel]) * 1e9).astype(np.int64)  # ns: exact sums
+            tm = self.timing[p]
+            tm["n"] += int(lead.size)
+            tm["lead_sum_ns"] += int(lead.sum())
+            tm["lead_sq_sum_ns2"] += int(np.sum(lead * lead))
+            tm["n_late"] += int(rd.late[sel].sum())
+            tm["n_clipped"] += int(rd.clipped[sel].sum())
             c = self.counts[p]
             n, rep, miss = read_counts(k_all[pos[sel]], self.k_read_last[p])
             c["n_reads"] += n
@@ -199,12 +223,13 @@ class Simulator:
             self.last = tuple(c[-1] for c in cols)
         return cols
 
-    def _siru_time(self, smp, tau: np.ndarray, j: np.ndarray, msgs: list) -> None:
-        """Truth of every SIRU sample, dated by the first read that can see it (moved to the end
-        of a data gap when that read falls in one), in blocks of one second of reads."""
+    def _siru_time(self, smp, t_read: np.ndarray, tau: np.ndarray, j: np.ndarray,
+                   msgs: list) -> None:
+        """Truth of every SIRU sample, dated by the tag of the first read that can see it (moved
+        to the end of a data gap when that read falls in one), in blocks of one second of reads."""
         if smp.tt.size == 0:
             return
-        first = np.searchsorted(tau, smp.t, side="left")  # first read with τ ≥ t_k
+        first = np.searchsorted(t_read, smp.t, side="left")  # first read instant ≥ t_k
         t_log = self.lay.after_gaps(tau[first])
         keep = t_log < self.lay.t_end
         part = self.lay.part(t_log)
