@@ -111,7 +111,34 @@ def make_summary(sp: StreamProcessor) -> dict[str, Any]:
                 "siru_samples", "siru_repeated", "siru_missing", "st1_used", "st1_edited",
                 "st2_used", "st2_edited", "input_rejected")},
             "converged": e.mode == "converged", "mode": e.mode, "flags": sp.flag_names(),
-            "latency_st": e.latency_estimate()}  # extension: tracker latency estimate, s
+            "latency_st": e.latency_estimate(),  # extension: tracker latency estimate, s
+            "clock": clock_summary(sp.clock)}  # extension: SIRU clock state at the end
+
+
+def clock_summary(clock) -> dict[str, Any]:
+    """The SIRU clock at the end of a run (summary extension, docs/contract_extensions.md)."""
+    tel = clock.telemetry()
+    keys = ("state", "note", "locked", "t_first_lock_s", "freq_offset_ppm",
+            "freq_offset_sigma_ppm", "tag_error_sigma_s", "read_jitter_s")
+    out = {k: tel[k] for k in keys}
+    out["counters"] = {k: tel["counters"][k] for k in ("crossings", "read_glitches", "anomalies",
+                                                       "relocks", "gaps", "resets")}
+    return out
+
+
+def clock_line(c: dict[str, Any]) -> str:
+    """One line on the SIRU clock for the end of `radical process` (says so when it never
+    locked)."""
+    if c["state"] == "naive":
+        return "SIRU clock: naive bus tags"
+    sig = c["freq_offset_sigma_ppm"]
+    eps = f"ε {c['freq_offset_ppm']:+.3f}" + (f" ± {sig:.3f}" if sig is not None else "") + " ppm"
+    if c["t_first_lock_s"] is None:
+        return f"SIRU clock: NEVER LOCKED ({c['note']}); {eps}"
+    first = f"first locked at t = {c['t_first_lock_s']:.1f} s"
+    now = "locked at the end" if c["locked"] else f"{c['state']} at the end ({c['note']})"
+    return (f"SIRU clock: {first}, {now}; {eps}; {c['counters']['crossings']} sawtooth wraps, "
+            f"{c['counters']['anomalies']} anomalies")
 
 
 def summary_table(summary: dict[str, Any]) -> str:
@@ -155,4 +182,5 @@ def run(args: argparse.Namespace) -> int:
         lat = summary["latency_st"]
         print(f"tracker latency {1e3 * lat['estimate_s']:.2f} ± {1e3 * lat['sigma_s']:.2f} ms "
               f"(configured {1e3 * lat['configured_s']:.2f} ms)")
+        print(clock_line(summary["clock"]))
     return 0

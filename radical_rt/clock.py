@@ -221,6 +221,7 @@ class SiruClock:
         self._F[L.F_Y_LO] = self._F[L.P_Y_LO]
         self._F[L.F_Y_HI] = self._F[L.P_Y_HI]
         self._F[L.F_DELTA] = self._F[L.P_DELTA]
+        self._F[L.F_T_LOCK] = -math.inf
 
     # ------------------------------------------------------------------ streaming
     def push(self, t_bus, tt, dtheta, status) -> GyroBatch:
@@ -408,14 +409,41 @@ class SiruClock:
         """Estimated SIRU sample-period offset ε (T_siru = T (1 + ε)) [ppm]."""
         return float(self._F[L.F_CY] / self._F[L.P_NS] / self._F[L.P_T] * 1e6)
 
+    def status(self) -> tuple[str, str]:
+        """``(state, note)``: ``naive``; ``acquiring`` (no sawtooth wrap seen since the phase
+        started: the sample phase is known only within the 0–10 ms band); ``one_wrap`` (phase
+        known, frequency not yet: locks at the next wrap); ``locked``; ``unlocked`` (the line's σ
+        grew above the lock threshold). The note says why, in words, for operators."""
+        if self.config.mode == "naive":
+            return "naive", "naive time tags (the bus tag of each sample's first read)"
+        if self.locked:
+            return "locked", ""
+        ist, fst = self._I, self._F
+        sig_us = self.tag_error_sigma_s * 1e6
+        if not ist[L.I_KAL]:
+            span = fst[L.F_TAU_NOW] - fst[L.F_GRID0] if ist[L.I_GRID] else 0.0
+            bound = f"; so |ε| < {self.config.period_s / span * 1e6:.0f} ppm" if span > 1.0 else ""
+            return "acquiring", (f"no sawtooth wrap in {span:.0f} s of reads{bound}: the sample "
+                                 f"phase is known within the 10 ms band only (σ {sig_us:.0f} µs)")
+        if ist[L.I_NCROSS] < 2:
+            return "one_wrap", ("one sawtooth wrap: phase known, frequency not yet (σ "
+                                f"{sig_us:.0f} µs, growing); locks at the next wrap")
+        return "unlocked", (f"time-line σ {sig_us:.0f} µs above the lock threshold "
+                            f"{self.config.lock_sigma_s * 1e6:.0f} µs")
+
     def telemetry(self) -> dict:
         """Clock estimates and counters (msgpack-able)."""
         acq = bool(self._I[L.I_ACQ])
         k = int(self._I[L.I_K_A])
         y_lo, y_hi = self._F[L.F_Y_LO], self._F[L.F_Y_HI]
         scale = 1e6 / self._F[L.P_NS] / self._F[L.P_T]
+        state, note = self.status()
+        t_lock = float(self._F[L.F_T_LOCK])
         return {
             "mode": self.config.mode,
+            "state": state,
+            "note": note,
+            "t_first_lock_s": t_lock if math.isfinite(t_lock) else None,
             "locked": self.locked,
             "anomaly": self.anomaly,
             "freq_offset_ppm": self.freq_offset_ppm() if acq else self.config.freq_offset_ppm,

@@ -135,7 +135,8 @@ F_KTAU = NPRM + 24  # bus time to which the fine line's covariance is propagated
 F_SIG_READ = NPRM + 25  # read jitter (1 sigma) estimated from the spates' widths [s]
 F_PCX = NPRM + 26  # polygon centroid (x, y)
 F_PCY = NPRM + 27
-NF = 28
+F_T_LOCK = NPRM + 28  # bus time at which the line first locked (-inf: never) [s]
+NF = 29
 # ---- polygon and workspace, then the held increments (A: last accepted sample, P: pending read)
 VMAX = 128  # storage per polygon array (>= 2 * clock_poly.VHIGH + 4)
 OX = NPRM + NF

@@ -127,6 +127,7 @@ def line_crossing(I, F, k_star, t_star, var_z):
     if I[L.I_KAL] == 0:
         _line_init(I, F, g, r_base, var_z, tau)
         line_select(I, F)
+        _note_lock(I, F, tau)
         return 1
     _predict(F, tau)
     cxx, cxy, cyy = F[L.F_KCXX], F[L.F_KCXY], F[L.F_KCYY]
@@ -153,7 +154,17 @@ def line_crossing(I, F, k_star, t_star, var_z):
     F[L.F_KCYY] = cyy - ky * hp_y
     I[L.I_NCROSS] += 1
     line_select(I, F)
+    _note_lock(I, F, tau)
     return 1
+
+
+@kernel
+def _note_lock(I, F, tau):
+    """Remember the bus time of the first lock that holds: σ of the line below the lock threshold
+    with the slope from two crossings (right after the first one σ can dip below it briefly)."""
+    if (F[L.F_T_LOCK] == -np.inf and I[L.I_NCROSS] >= 2
+            and line_var(I, F, I[L.I_K_A], tau) < F[L.P_LOCK_SIGMA] ** 2):
+        F[L.F_T_LOCK] = tau
 
 
 @kernel

@@ -46,6 +46,7 @@ import numpy as np
 from . import checkpoint as ckpt
 from . import commands
 from .batch import make_processor, make_summary
+from .node_clock import ClockNotice
 from .node_timing import LoopTiming
 from .params import ParamTable
 from .stream import INPUT_TOPICS, StreamProcessor
@@ -82,6 +83,7 @@ class Vehicle:
         self.fed: dict[str, int] = defaultdict(int)  # loop thread only
         self.commands_applied = 0
         self.published: dict[str, int] = defaultdict(int)
+        self.clock_notice = ClockNotice(name)
 
     # ---- called by commands.apply (filter loop thread)
     def status(self) -> dict[str, Any]:
@@ -399,6 +401,7 @@ class FilterNode:
         for topic, msg in outs:
             if topic == "diag":
                 msg = {**msg, "node": v.node_info()}
+                v.clock_notice.seen(msg.get("clock"), float(msg.get("t", math.nan)))
             try:  # remote_only: never back into our own input FIFO
                 self.transport.put(v.prefix + topic, packb(msg),
                                    block=self.block_outputs or topic == "fault", remote_only=True)
