@@ -143,6 +143,8 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False,
     try:
         params = cv.need(cv.need(state, "params", "state"), "active", "params")
         type(e.table)(n_gyro=e.n_gyro).set(params)
+        # the default table is not restored (the node's --config sets it) but must be valid too
+        type(e.table)(n_gyro=e.n_gyro).set(cv.need(state["params"], "default", "params"))
         packets = _check_packets(cv.need(state, "packets", "state"))
         st = cv.need(state, "stream", "state")
         rejected = cv.counter_map(cv.need(st, "rejected", "stream"), "stream.rejected")

@@ -131,7 +131,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "bump_phi2_arcsec": (0.0, 36000.0), "bump_b_deg_hr": (0.0, 3600.0), "bump_lam_ppm": (0.0, 1e5),
     "bump_mu_ppm": (0.0, 1e5), "bump_du_arcsec": (0.0, 36000.0), "bump_dv_arcsec": (0.0, 36000.0),
     "gate_st_nis": (1e-3, 1e6), "gate_parity_nis": (1e-3, 1e6),
-    "fdi_false_alarm_per_hr": (1e-12, 3600.0), "fdi_guard_ratio": (0.0, 1e6),
+    "fdi_false_alarm_per_hr": (1e-12, 3600.0), "fdi_guard_ratio": (1e-3, 1e6),
     "fdi_isolation_error_prob": (1e-12, 0.5),
     "conv_b_deg_hr": (0.0, 3600.0), "conv_lam_ppm": (0.0, 1e6), "conv_mu_ppm": (0.0, 1e6),
     "conv_misalign_arcsec": (0.0, 36000.0), "conv_phi2_arcsec": (0.0, 36000.0),
