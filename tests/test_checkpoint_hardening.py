@@ -257,5 +257,7 @@ def test_resume_continues_the_stream(msgs, tmp_path):
     for g, s0 in e0.sigmas().items():
         s0, s1 = np.array(s0), np.array(e1.sigmas()[g])
         dz = np.abs(np.array(e1.estimates()[g]) - np.array(e0.estimates()[g])) / s0
+        print(f"resume {g}: max |d|/sigma {dz.max():.3f}, sigma ratio "
+              f"{(s1 / s0).min():.4f}..{(s1 / s0).max():.4f}")
         assert dz.max() < 0.3, (g, dz)
         assert np.abs(s1 / s0 - 1).max() < 0.1, (g, s1 / s0)

@@ -53,5 +53,7 @@ def test_kill9_resume_continues_the_stream(archives, batch_ref, tmp_path):  # no
     for g in ref["estimate"]:
         s0, s1 = np.array(ref["sigma"][g]), np.array(s["sigma"][g])
         dz = np.abs(np.array(s["estimate"][g]) - np.array(ref["estimate"][g])) / s0
+        print(f"resume kill -9 {g}: max |d|/sigma {dz.max():.3f}, sigma ratio "
+              f"{(s1 / s0).min():.4f}..{(s1 / s0).max():.4f}")
         assert dz.max() < 0.3, (g, dz)
         assert np.abs(s1 / s0 - 1).max() < 0.1, (g, s1 / s0)
