@@ -12,7 +12,7 @@ from test_node_support import MemNode, archives, feed_archive, input_messages  #
 
 from radical_rt.batch import make_processor
 from radical_rt.flags import Flag
-from radical_rt.params import ParamTable, Params
+from radical_rt.params import Params, ParamTable
 
 
 @pytest.fixture(scope="module")
