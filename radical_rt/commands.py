@@ -32,6 +32,11 @@ checkpoint         – → path (written now; needs the node's --checkpoint PATH
 end_stream         next "warm"|"cold"|"none" (default "warm"): end of a telemetry stream,
                    as between two archives of ``radical process`` → summary (before restart)
 =================  ======================================================================
+
+Every argument has a valid range (docs/node.md, "Valid ranges"): parameters
+:data:`radical_rt.params.RANGES`, bump 1σ at most :data:`BUMP_MAX_SI` per group, packet settings
+:func:`radical_rt.telemetry.parse_packets`. ``id`` is a string of at most 128 characters or an
+integer. A refused command changes nothing and its error names the value and why.
 """
 
 from __future__ import annotations
@@ -108,6 +113,12 @@ def parse(payload: bytes | dict, n_gyro: int = 4) -> Command:
     if name not in COMMANDS:
         raise CommandError(f"unknown command {name!r}; known: {', '.join(COMMANDS)}")
     allowed, parser, _ = COMMANDS[name]
+    rid = req.get("id")
+    if rid is not None and not (isinstance(rid, str) and len(rid) <= 128 or isinstance(rid, int)
+                                and not isinstance(rid, bool)):
+        exc = CommandError(f"{name}: 'id' must be a string of at most 128 characters or an integer")
+        exc.cmd = name
+        raise exc
     try:
         unknown = sorted(str(k) for k in set(req) - _COMMON - set(allowed))
         if unknown:
@@ -259,7 +270,7 @@ def _table_change(e: Any, where: str, change: Any) -> None:
         e.params_changed()
         if getattr(e, "fdi", None) is not None:  # the thresholds must be computable
             e.fdi._detector(e)
-    except (ParamError, ArithmeticError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever failed, the old table comes back
         e.table.active = old
         e.params_changed()
         raise CommandError(f"{where}: {exc} (nothing changed)") from None

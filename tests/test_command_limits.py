@@ -144,3 +144,8 @@ def test_numeric_is_cleared_by_a_cold_start(mn, msgs):
 def test_set_packets_refuses_bad_periods_and_fields(mn, spec, match):
     """Defect: set_packets accepted a NaN period (the packet silently stopped) and true."""
     refused(mn, {"cmd": "set_packets", "packets": {"small": spec}}, match)
+
+
+@pytest.mark.parametrize("rid", ["x" * 1000, 1.5, [1], {"a": 1}, True])
+def test_request_id_is_bounded(mn, rid):
+    refused(mn, {"cmd": "status", "id": rid}, "'id' must be")
