@@ -261,3 +261,11 @@ def test_resume_continues_the_stream(msgs, tmp_path):
               f"{(s1 / s0).min():.4f}..{(s1 / s0).max():.4f}")
         assert dz.max() < 0.3, (g, dz)
         assert np.abs(s1 / s0 - 1).max() < 0.1, (g, s1 / s0)
+
+
+def test_force_vehicle_overrides_the_vehicle_check(good_ckpt, tmp_path):
+    path = tmp_path / "v1.ckpt"
+    path.write_bytes(good_ckpt)
+    sp = build_processors(["v2"], resume=str(path), force_vehicle=True)["v2"]
+    ref = build_processors(["v1"], resume=str(path))["v1"]
+    assert sp.engine.estimates() == ref.engine.estimates() and sp.engine.att_valid
