@@ -32,22 +32,34 @@ checkpoint         – → path (written now; needs the node's --checkpoint PATH
 end_stream         next "warm"|"cold"|"none" (default "warm"): end of a telemetry stream,
                    as between two archives of ``radical process`` → summary (before restart)
 =================  ======================================================================
+
+Every argument has a valid range (docs/node.md, "Valid ranges"): parameters
+:data:`radical_rt.params.RANGES`, bump 1σ at most :data:`BUMP_MAX_SI` per group, packet settings
+:func:`radical_rt.telemetry.parse_packets`. ``id`` is a string of at most 128 characters or an
+integer. A refused command changes nothing and its error names the value and why.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import msgpack
+import numpy as np
 
-from .params import ParamError, ParamTable
+from . import ud
+from .conventions import ARCSEC, DEG_PER_HR, PPM
+from .params import GROUP_BUMP, RANGES, ParamError, ParamTable
 from .state import PARAM_GROUPS, StateLayout
 from .stream import StreamProcessor
 from .telemetry import PacketError, PacketSpec, parse_packets
 
+_BUMP_UNIT = {"b": DEG_PER_HR, "lam": PPM, "mu": PPM, "du": ARCSEC, "dv": ARCSEC, "phi2": ARCSEC}
 _COMMON = {"cmd", "v", "id"}
+#: largest 1σ a bump may add per group [SI] (the table's bump_* ranges, :data:`params.RANGES`)
+BUMP_MAX_SI = {g: RANGES[name][1] * _BUMP_UNIT[g] for g, name in GROUP_BUMP.items()}
 
 
 class CommandError(ValueError):
@@ -101,6 +113,12 @@ def parse(payload: bytes | dict, n_gyro: int = 4) -> Command:
     if name not in COMMANDS:
         raise CommandError(f"unknown command {name!r}; known: {', '.join(COMMANDS)}")
     allowed, parser, _ = COMMANDS[name]
+    rid = req.get("id")
+    if rid is not None and not (isinstance(rid, str) and len(rid) <= 128 or isinstance(rid, int)
+                                and not isinstance(rid, bool)):
+        exc = CommandError(f"{name}: 'id' must be a string of at most 128 characters or an integer")
+        exc.cmd = name
+        raise exc
     try:
         unknown = sorted(str(k) for k in set(req) - _COMMON - set(allowed))
         if unknown:
@@ -128,13 +146,27 @@ def _p_set_params(a: dict, n: int) -> dict:
     return {"params": params}
 
 
-def _number_list(where: str, values: Any, size: int) -> list[float]:
+def _number_list(where: str, values: Any, size: int, hi: float) -> list[float]:
     if not isinstance(values, (list, tuple)) or len(values) != size:
-        raise CommandError(f"{where}: expected a list of {size} numbers, got {values!r}")
+        raise CommandError(f"{where}: expected a list of {size} numbers, got {_short(values)}")
     for v in values:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise CommandError(f"{where}: values must be finite numbers ≥ 0 (SI), got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _in(v, 0.0, hi):
+            raise CommandError(f"{where}: values must be numbers in [0, {hi:g}] (SI), "
+                               f"got {_short(v)}")
     return [float(v) for v in values]
+
+
+def _in(v: int | float, lo: float, hi: float) -> bool:
+    """lo ≤ v ≤ hi for a finite v (ints beyond float range are out)."""
+    try:
+        return math.isfinite(float(v)) and lo <= float(v) <= hi
+    except OverflowError:
+        return False
+
+
+def _short(value: Any) -> str:
+    r = repr(value)
+    return r if len(r) <= 60 else r[:57] + "..."
 
 
 def _p_bump(a: dict, n: int) -> dict:
@@ -147,7 +179,8 @@ def _p_bump(a: dict, n: int) -> dict:
     for group, values in sigma.items():
         if group not in PARAM_GROUPS:
             raise CommandError(f"bump: unknown group {group!r}; groups: {', '.join(PARAM_GROUPS)}")
-        out[group] = _number_list(f"bump: sigma.{group}", values, layout.block(group).size)
+        out[group] = _number_list(f"bump: sigma.{group}", values, layout.block(group).size,
+                                  BUMP_MAX_SI[group])
     mode = a.get("mode")
     if mode is not None and mode not in ("add", "scale"):
         raise CommandError(f"bump: mode must be 'add' or 'scale', got {mode!r}")
@@ -217,27 +250,69 @@ def _a_get_params(a: dict, t: Target) -> dict:
 
 
 def _a_set_params(a: dict, t: Target) -> dict:
-    e = t.sp.engine
-    try:
-        e.table.set(a["params"])
-    except ParamError as exc:  # cannot happen after parse(), kept all-or-nothing anyway
-        raise CommandError(f"set_params: {exc}") from None
-    e.params_changed()
-    active = e.table.as_dict("active")
+    _table_change(t.sp.engine, "set_params", lambda table: table.set(a["params"]))
+    active = t.sp.engine.table.as_dict("active")
     return {"params": {k: active[k] for k in a["params"]}}
 
 
 def _a_reset_params(a: dict, t: Target) -> dict:
-    e = t.sp.engine
-    e.table.reset()
-    e.params_changed()
-    return {"params": e.table.as_dict("active")}
+    _table_change(t.sp.engine, "reset_params", lambda table: table.reset())
+    return {"params": t.sp.engine.table.as_dict("active")}
+
+
+def _table_change(e: Any, where: str, change: Any) -> None:
+    """Change the active table and let the engine re-read it, all-or-nothing: if the change or
+    the engine's derived configuration (SI table, FDI thresholds) fails, the previous table is
+    put back and re-read, and CommandError says why (nothing changed)."""
+    old = copy.deepcopy(e.table.active)
+    try:
+        change(e.table)
+        e.params_changed()
+        if getattr(e, "fdi", None) is not None:  # the thresholds must be computable
+            e.fdi._detector(e)
+    except Exception as exc:  # noqa: BLE001 - whatever failed, the old table comes back
+        e.table.active = old
+        e.params_changed()
+        raise CommandError(f"{where}: {exc} (nothing changed)") from None
 
 
 def _a_bump(a: dict, t: Target) -> dict:
+    """The bump is tried first on copies of the UD factors (:func:`_bump_dry_run`): one that
+    would not leave valid factors is refused and changes nothing."""
     e = t.sp.engine
-    e.bump(a["sigma"], a["mode"] or e.si.bump_mode)
-    return {"sigma": e.sigmas(), "mode": a["mode"] or e.si.bump_mode}
+    mode = a["mode"] or e.si.bump_mode
+    why = _bump_dry_run(e, a["sigma"], mode)
+    if why:
+        raise CommandError(f"bump: {why} (nothing changed)")
+    e.bump(a["sigma"], mode)
+    return {"sigma": e.sigmas(), "mode": mode}
+
+
+#: a "scale" bump may multiply a σ by at most this (larger factors break the conditioning of U)
+BUMP_SCALE_MAX = 1e6
+
+
+def _bump_dry_run(e: Any, sigma: dict[str, list[float]], mode: str) -> str:
+    """Why the bump would not leave finite UD factors with d > 0 ("" if it would)."""
+    U, d = e.U.copy(), e.d.copy()
+    if mode == "add":
+        idx = [e.layout[g].start + k for g, v in sigma.items() for k in range(len(v))]
+        c = [float(x) ** 2 for v in sigma.values() for x in v]
+        status = ud.add_diagonal_noise(U, d, np.asarray(idx, np.int64), np.asarray(c),
+                                       np.zeros(e.ns))
+    else:
+        var = e.variances()
+        s = np.ones(e.ns)
+        for g, v in sigma.items():
+            sl = e.layout[g]
+            with np.errstate(all="ignore"):
+                s[sl] = np.sqrt(1.0 + np.asarray(v, float) ** 2 / var[sl])
+        if not (np.all(np.isfinite(s)) and s.max() <= BUMP_SCALE_MAX):
+            return f"a scale factor would exceed {BUMP_SCALE_MAX:g}"
+        status = ud.scale_states(U, d, s)
+    if status != 0 or not (np.all(np.isfinite(U)) and np.all(np.isfinite(d)) and np.all(d > 0)):
+        return f"the bumped covariance would not be numerically valid (UD status {status})"
+    return ""
 
 
 def _a_warm(a: dict, t: Target) -> dict:

@@ -85,6 +85,8 @@ class Engine(FastRelease, EngineState):
         self.acc_f[ACC_NOISE_T] = 0.0
         self._refresh()
         self._begin_attitude_init()
+        self.flags &= ~int(Flag.NUMERIC)  # a cold start recovers from a numeric fault (latched until then)
+        self.last_numeric = ""
         self.counters["cold_starts"] += 1
 
     def warm_start(self, bump: bool = True) -> None:

@@ -113,6 +113,7 @@ class Vehicle:
                 "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
+                "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
                 if n.last_checkpoint_mono is not None else None}
 
@@ -172,6 +173,7 @@ class FilterNode:
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
+    CHECKPOINT_RETRY_S = 5.0  # a failed periodic checkpoint is retried this much later [s]
 
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
                  checkpoint_path: str | None = None, checkpoint_every_s: float = 60.0,
@@ -201,6 +203,8 @@ class FilterNode:
         self._idle = False  # the loop waits for input (set before its last look at commands)
         self._processed = 0
         self.checkpoints_written = 0
+        self.checkpoint_failures = 0  # periodic writes that failed (retried, never fatal)
+        self.checkpoint_error: str | None = None  # why the last write failed (None: it did not)
         self.last_checkpoint_mono: float | None = None
         self.loop_error: BaseException | None = None
         self.running = False
@@ -417,11 +421,26 @@ class FilterNode:
         if dropped:
             self._report_overflows(dropped)
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
-            self._next_ckpt = self._mono() + self.checkpoint_every_s
-            try:
-                self.write_checkpoint()
-            except ckpt.CheckpointError as exc:
-                log.error("%s", exc)
+            self._periodic_checkpoint()
+
+    def _periodic_checkpoint(self) -> None:
+        """The periodic write. A failure (directory removed, disk full) never stops the filter:
+        it is counted (``checkpoint_failures``), its reason kept (``checkpoint_error``, in diag
+        and status), logged once per failure run, and retried after ``CHECKPOINT_RETRY_S`` (or
+        the period, if shorter) until a write succeeds."""
+        try:
+            self.write_checkpoint()
+        except (commands.CommandError, ckpt.CheckpointError, OSError) as exc:
+            self.checkpoint_failures += 1
+            if self.checkpoint_error is None:
+                log.error("periodic checkpoint failed (will retry): %s", exc)
+            self.checkpoint_error = str(exc)
+            self._next_ckpt = self._mono() + min(self.CHECKPOINT_RETRY_S, self.checkpoint_every_s)
+            return
+        if self.checkpoint_error is not None:
+            log.warning("checkpoint written again after %d failure(s)", self.checkpoint_failures)
+        self.checkpoint_error = None
+        self._next_ckpt = self._mono() + self.checkpoint_every_s
 
     def _report_overflows(self, dropped: dict[str, int]) -> None:
         for key, n in dropped.items():
@@ -449,7 +468,7 @@ class FilterNode:
             raise commands.CommandError("no checkpoint path: start the node with --checkpoint PATH")
         try:
             path = ckpt.write(self.checkpoint_path,
-                              {name: ckpt.capture(v.sp) for name, v in self.vehicles.items()})
+                              {name: ckpt.capture(v.sp, name) for name, v in self.vehicles.items()})
         except ckpt.CheckpointError as exc:
             raise commands.CommandError(str(exc)) from None
         self.checkpoints_written += 1
@@ -468,10 +487,14 @@ def _note_reject(sp: StreamProcessor, topic: str, reason: str, message: str, cou
 # ------------------------------------------------------------------------------------ set-up
 def build_processors(vehicles: list[str], config: str | None = None, packets: str | None = None,
                      clock_mode: str = "reconstruct", resume: str | None = None,
-                     resume_bump: bool = False) -> dict[str, StreamProcessor]:
+                     resume_bump: bool = False, force_vehicle: bool = False,
+                     resume_new_stream: bool = False) -> dict[str, StreamProcessor]:
     """One StreamProcessor per vehicle (own parameter table and packets), restored if resuming.
 
-    Raises ParamError / PacketError / CheckpointError / ValueError with clear messages.
+    Resuming needs the state of every served vehicle in the checkpoint; a checkpoint of another
+    vehicle is refused unless ``force_vehicle`` (then a single-vehicle checkpoint is loaded into
+    a single served vehicle, and served vehicles the file does not hold start cold). Raises
+    ParamError / PacketError / CheckpointError / ValueError with one-line messages.
     """
     if not vehicles:
         raise ValueError("give at least one --vehicle")
@@ -486,19 +509,30 @@ def build_processors(vehicles: list[str], config: str | None = None, packets: st
         out[name] = make_processor(table, clock_mode, packets)
     if resume:
         doc = ckpt.read(resume)
+        held = sorted(doc["vehicles"])
         for name, sp in out.items():
-            state = doc["vehicles"].get(name)
-            if state is None:
-                log.warning("checkpoint %s has no state for vehicle %r: it starts cold", resume, name)
-                continue
+            key = name
+            if name not in doc["vehicles"]:
+                if not force_vehicle:
+                    raise ckpt.CheckpointError(
+                        f"{resume}: checkpoint of vehicle(s) {held}, not of {name!r} (refused; "
+                        "--force-vehicle overrides)")
+                if len(held) == 1 and len(out) == 1:
+                    key = held[0]
+                    log.warning("%s: loading the state of vehicle %r (--force-vehicle)", name, key)
+                else:
+                    log.warning("checkpoint %s has no state for vehicle %r: it starts cold "
+                                "(--force-vehicle)", resume, name)
+                    continue
+            state = doc["vehicles"][key]
             try:
-                ckpt.restore(sp, state, bump=resume_bump)
+                ckpt.restore(sp, state, bump=resume_bump, new_stream=resume_new_stream)
             except ckpt.CheckpointError as exc:
-                raise ckpt.CheckpointError(f"{resume}: vehicle {name}: {exc}") from None
+                raise ckpt.CheckpointError(f"{resume}: vehicle {key}: {exc}") from None
             log.info("%s: resumed from %s (t=%.3f, mode before restart %s)", name, resume,
-                     state["t"], state["mode"])
-        extra = sorted(set(doc["vehicles"]) - set(vehicles))
-        if extra:
+                     state.get("t", math.nan), state.get("mode"))
+        extra = sorted(set(held) - set(vehicles))
+        if extra and not force_vehicle:
             log.warning("checkpoint %s also holds %s (not served, ignored)", resume, extra)
     return out
 
@@ -525,5 +559,5 @@ def warm_up(clock_mode: str = "reconstruct", seconds: float = 2.0) -> float:
     e = sp.engine
     e.bump({g: list(v) for g, v in e.si.bump_sigma.items()}, "scale")
     e.cold_start()
-    ckpt.capture(sp)
+    ckpt.capture(sp, "warm-up")
     return time.perf_counter() - t0

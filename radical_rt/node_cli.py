@@ -40,10 +40,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--packets", metavar="PACKETS.toml", help="telemetry packet configuration")
     p.add_argument("--clock", choices=("reconstruct", "naive"), default="reconstruct",
                    help="SIRU time tags: online reconstruction (default) or naive bus tags")
-    p.add_argument("--resume", metavar="CKPT", help="restore calibration state from a checkpoint "
-                   "and warm-start (attitude from the next tracker)")
+    p.add_argument("--resume", metavar="CKPT",
+                   help="restore the state of a checkpoint and continue its stream "
+                   "(see --resume-new-stream, --force-vehicle)")
     p.add_argument("--resume-bump", action="store_true",
                    help="apply the configured covariance bump when resuming")
+    p.add_argument("--force-vehicle", action="store_true",
+                   help="resume even from a checkpoint of another vehicle (default: refused)")
+    p.add_argument("--resume-new-stream", action="store_true",
+                   help="resume the calibration but start a new stream (clock phase forgotten, "
+                        "warm start); default: continue the checkpointed stream")
     p.add_argument("--checkpoint", metavar="PATH",
                    help="checkpoint file (written periodically, on command and at shutdown)")
     p.add_argument("--checkpoint-every", type=float, default=60.0, metavar="S",
@@ -84,8 +90,11 @@ def _check(args: argparse.Namespace) -> str | None:
         return "--queue-size must be ≥ 1"
     if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
         return "--rt-priority must be 1..99"
-    if args.resume_bump and not args.resume:
-        return "--resume-bump needs --resume"
+    for opt, given in (("--resume-bump", args.resume_bump),
+                       ("--resume-new-stream", args.resume_new_stream),
+                       ("--force-vehicle", args.force_vehicle)):
+        if given and not args.resume:
+            return f"{opt} needs --resume"
     for opt, path in (("--checkpoint", args.checkpoint), ("--timing-out", args.timing_out)):
         if path:
             parent = Path(path).resolve().parent
@@ -120,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         processors = build_processors(args.vehicle, args.config, args.packets, args.clock,
-                                      args.resume, args.resume_bump)
+                                      args.resume, args.resume_bump, args.force_vehicle,
+                                      args.resume_new_stream)
     except (ValueError, ParamError, PacketError, CheckpointError) as exc:
         return _fail(str(exc))
     jit_s = warm_up(args.clock)

@@ -111,32 +111,89 @@ _CHOICES = {"init_var_rule": tuple(INIT_VAR_RULES), "bump_mode": ("add", "scale"
 _LIST_LEN = {"bump_phi2_arcsec": 3}
 
 
+#: Valid range [lo, hi] (inclusive, the parameter's own units; list parameters: every element) of
+#: every numeric parameter. The bounds keep every kernel loop bounded and every division and
+#: exponential finite (issue 23): e.g. σ and L > 0 (a zero UD diagonal is not a factor), windows
+#: of at most 1000 / 100 000 samples, a false-alarm rate the thresholds can invert.
+RANGES: dict[str, tuple[float, float]] = {
+    "st_sigma_cross_arcsec": (1e-3, 3600.0), "st_sigma_bore_arcsec": (1e-3, 36000.0),
+    "st_ref_stars": (1.0, 100.0), "st_min_stars": (0, 100), "latency_st_s": (0.0, 10.0),
+    "latency_sigma0_s": (0.0, 1.0), "q_latency_s_sqrt_s": (0.0, 1e-2), "st_stale_s": (1e-3, 3600.0),
+    "arw_deg_sqrt_hr": (0.0, 10.0), "quant_arcsec": (0.0, 100.0), "gyro_gap_s": (1e-3, 3600.0),
+    "parity_window": (1, 100_000), "prop_window": (1, 1000), "timing_consider_s": (0.0, 10.0),
+    "parity_lag_s": (0.0, 600.0), "regressor_k_sigma": (0.0, 100.0),
+    "q_b_deg_hr_sqrt_s": (0.0, 1.0), "q_lam_ppm_sqrt_s": (0.0, 100.0),
+    "q_mu_ppm_sqrt_s": (0.0, 100.0), "q_misalign_arcsec_sqrt_s": (0.0, 100.0),
+    "q_phi2_arcsec_sqrt_s": (0.0, 100.0),
+    "L_b_deg_hr": (1e-6, 3600.0), "L_lam_ppm": (1e-3, 1e5), "L_mu_ppm": (1e-3, 1e5),
+    "L_du_arcsec": (1e-3, 36000.0), "L_dv_arcsec": (1e-3, 36000.0), "L_phi2_arcsec": (1e-3, 36000.0),
+    "att_init_scale": (0.1, 1000.0),
+    "bump_phi2_arcsec": (0.0, 36000.0), "bump_b_deg_hr": (0.0, 3600.0), "bump_lam_ppm": (0.0, 1e5),
+    "bump_mu_ppm": (0.0, 1e5), "bump_du_arcsec": (0.0, 36000.0), "bump_dv_arcsec": (0.0, 36000.0),
+    "gate_st_nis": (1e-3, 1e6), "gate_parity_nis": (1e-3, 1e6),
+    "fdi_false_alarm_per_hr": (1e-12, 3600.0), "fdi_guard_ratio": (1e-3, 1e6),
+    "fdi_isolation_error_prob": (1e-12, 0.5),
+    "conv_b_deg_hr": (0.0, 3600.0), "conv_lam_ppm": (0.0, 1e6), "conv_mu_ppm": (0.0, 1e6),
+    "conv_misalign_arcsec": (0.0, 36000.0), "conv_phi2_arcsec": (0.0, 36000.0),
+    "conv_phi2_bore_arcsec": (0.0, 36000.0),
+}
+
+
 def _check_value(name: str, value: Any, default: Any, n_gyro: int) -> Any:
-    """Validate one parameter against the type of its default; return the normalized value."""
+    """Validate one parameter against the type of its default and its :data:`RANGES` entry;
+    return the normalized value (ParamError naming the parameter otherwise)."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ParamError(f"{name}: expected true/false, got {value!r}")
         return value
     if isinstance(default, str):
-        if value not in _CHOICES.get(name, (value,)):
+        if not isinstance(value, str) or value not in _CHOICES.get(name, (value,)):
             raise ParamError(f"{name}: must be one of {_CHOICES[name]}, got {value!r}")
         return value
     if isinstance(default, list):
         n = _LIST_LEN.get(name, n_gyro)
         if not isinstance(value, (list, tuple)) or len(value) != n:
-            raise ParamError(f"{name}: expected a list of {n} numbers, got {value!r}")
+            raise ParamError(f"{name}: expected a list of {n} numbers, got {_short(value)}")
         return [_check_value(name, v, 0.0, n_gyro) for v in value]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParamError(f"{name}: expected a number, got {value!r}")
-    if not math.isfinite(value) or value < 0:
-        raise ParamError(f"{name}: must be finite and ≥ 0, got {value!r}")
+        raise ParamError(f"{name}: expected a number, got {_short(value)}")
+    try:
+        fvalue = float(value)
+    except OverflowError:  # an int beyond float range
+        raise ParamError(f"{name}: {_short(value)} is out of range") from None
+    if not math.isfinite(fvalue):
+        raise ParamError(f"{name}: must be finite, got {value!r}")
+    lo, hi = RANGES.get(name, (0.0, math.inf))
+    if not lo <= fvalue <= hi:
+        raise ParamError(f"{name}: must be in [{lo:g}, {hi:g}], got {_short(value)}")
     if isinstance(default, int) and not isinstance(default, bool):
         if int(value) != value:
             raise ParamError(f"{name}: expected an integer, got {value!r}")
-        value = int(value)
-    if name in ("parity_window", "prop_window") and value < 1:
-        raise ParamError(f"{name}: must be ≥ 1")
-    return value
+        return int(value)
+    return fvalue
+
+
+def _short(value: Any) -> str:
+    """repr of a value, cut to 60 characters (error messages stay one short line)."""
+    r = repr(value)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def ranges_table() -> str:
+    """The Markdown table of every parameter: default and valid range (docs/node.md)."""
+    rows = ["| parameter | default | valid range |", "|---|---|---|"]
+    for f in fields(Params):
+        d = getattr(Params(), f.name)
+        if isinstance(d, bool):
+            rng = "true / false"
+        elif isinstance(d, str):
+            rng = " / ".join(_CHOICES[f.name])
+        else:
+            lo, hi = RANGES[f.name]
+            rng = f"[{lo:g}, {hi:g}]" + (" each" if isinstance(d, list) else "")
+            rng += " integer" if isinstance(d, int) else ""
+        rows.append(f"| `{f.name}` | {d} | {rng} |")
+    return "\n".join(rows)
 
 
 class ParamTable:

@@ -111,6 +111,11 @@ def default_packets() -> dict[str, PacketSpec]:
             "large": PacketSpec("large", list(LARGE), period_s=1.0)}
 
 
+#: valid packet period [s] (NaN, ±inf and booleans are refused) and largest decimation
+PERIOD_RANGE_S = (1e-3, 86400.0)
+DECIMATION_MAX = 1_000_000
+
+
 def parse_packets(doc: dict[str, Any]) -> dict[str, PacketSpec]:
     """Validate a packet configuration map {name: {fields, period_s | decimation}}; all-or-nothing."""
     if not isinstance(doc, dict):
@@ -123,20 +128,29 @@ def parse_packets(doc: dict[str, Any]) -> dict[str, PacketSpec]:
             raise PacketError(f"packet {name!r}: settings must be a map")
         unknown = set(spec) - {"fields", "period_s", "decimation", "trigger"}
         if unknown:
-            raise PacketError(f"packet {name!r}: unknown setting(s) {sorted(unknown)}")
+            raise PacketError(f"packet {name!r}: unknown setting(s) {sorted(map(str, unknown))}")
         fields_ = spec.get("fields", out[name].fields)
-        if not isinstance(fields_, list) or not fields_:
-            raise PacketError(f"packet {name!r}: fields must be a non-empty list")
-        bad = [f for f in fields_ if f not in CATALOGUE]
+        if not isinstance(fields_, list) or not fields_ or len(fields_) > len(CATALOGUE):
+            raise PacketError(f"packet {name!r}: fields must be a non-empty list of at most "
+                              f"{len(CATALOGUE)} names")
+        bad = [f for f in fields_ if not isinstance(f, str) or f not in CATALOGUE]
         if bad:
-            raise PacketError(f"packet {name!r}: unknown field(s) {bad}; catalogue: {sorted(CATALOGUE)}")
+            raise PacketError(f"packet {name!r}: unknown field(s) {bad[:5]}; catalogue: {sorted(CATALOGUE)}")
+        if len(set(fields_)) != len(fields_):
+            raise PacketError(f"packet {name!r}: fields repeat")
         period, dec = spec.get("period_s"), spec.get("decimation")
         if period is not None and dec is not None:
             raise PacketError(f"packet {name!r}: give period_s or decimation, not both")
-        if period is not None and (not isinstance(period, (int, float)) or period <= 0):
-            raise PacketError(f"packet {name!r}: period_s must be a positive number")
-        if dec is not None and (not isinstance(dec, int) or isinstance(dec, bool) or dec < 1):
-            raise PacketError(f"packet {name!r}: decimation must be an integer ≥ 1")
+        if period is not None and (isinstance(period, bool) or not isinstance(period, (int, float))
+                                   or not PERIOD_RANGE_S[0] <= period <= PERIOD_RANGE_S[1]):
+            raise PacketError(f"packet {name!r}: period_s must be a number in "
+                              f"[{PERIOD_RANGE_S[0]:g}, {PERIOD_RANGE_S[1]:g}] s, got {period!r}")
+        if dec is not None and (not isinstance(dec, int) or isinstance(dec, bool)
+                                or not 1 <= dec <= DECIMATION_MAX):
+            raise PacketError(f"packet {name!r}: decimation must be an integer in "
+                              f"[1, {DECIMATION_MAX}], got {dec!r}")
+        if period is not None:
+            period = float(period)
         if period is None and dec is None:
             period, dec = out[name].period_s, out[name].decimation
         trigger = spec.get("trigger", out[name].trigger)

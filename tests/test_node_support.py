@@ -59,7 +59,8 @@ class MemNode:
 
     def __init__(self, vehicles=("v1",), threaded: bool = False, **node_kw) -> None:
         self.bus = InMemoryBus(threaded=threaded)
-        build_kw = {k: node_kw.pop(k) for k in ("config", "packets", "resume", "resume_bump")
+        build_kw = {k: node_kw.pop(k) for k in ("config", "packets", "resume", "resume_bump",
+                                                          "force_vehicle", "resume_new_stream")
                     if k in node_kw}
         self.node = FilterNode(InMemoryTransport(self.bus), build_processors(list(vehicles), **build_kw),
                                **node_kw)
