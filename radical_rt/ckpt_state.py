@@ -166,7 +166,8 @@ def _check_clock(c: Any, sp: StreamProcessor) -> dict[str, Any]:
     ist = cv.num_list(cv.need(c, "I", "clock"), "clock.I", L.NI, -cv.INT_MAX, cv.INT_MAX,
                       integer=True)
     fst = cv.num_list(cv.need(c, "F", "clock"), "clock.F", L.f_size(clock.n_gyro), finite=False)
-    for k in (L.I_HAVE_A, L.I_HAVE_P, L.I_ACQ, L.I_HAVE_OUT):
+    for k in (L.I_HAVE_A, L.I_HAVE_P, L.I_ACQ, L.I_HAVE_OUT, L.I_GRID, L.I_SP_ON, L.I_KAL,
+              L.I_KMEM):
         cv.number(int(ist[k]), f"clock.I[{k}]", 0, 1, integer=True)
     cv.number(int(ist[L.I_NV]), f"clock.I[{L.I_NV}] (polygon vertices)", 0, (L.VMAX - 4) // 2,
               integer=True)
@@ -184,6 +185,8 @@ def _check_clock(c: Any, sp: StreamProcessor) -> dict[str, Any]:
     cv.values(fst[L.DA:], "clock.F (held increments)", -10.0, 10.0)
     if not fst[L.F_Y_LO] <= fst[L.F_Y_HI]:
         raise cv.CheckpointFieldError("clock.F: slope range is empty")
+    for k, name in ((L.F_KCXX, "fine line var x"), (L.F_KCYY, "fine line var y")):
+        cv.number(float(fst[k]), f"clock.F[{k}] ({name})", 0.0, 1.0)
     return {"schema": c["schema"], "config": c["config"], "n_gyro": clock.n_gyro,
             "I": [int(v) for v in ist], "F": [float(v) for v in fst]}
 

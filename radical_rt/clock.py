@@ -101,7 +101,7 @@ class ClockConfig:
     # --- sequence and anomaly checks
     bus_period_s: float = 0.01
     check_bus_ticks: bool = True  # reads must fall on the bus's read ticks (within read_tol_s)
-    read_tol_s: float = 1e-3
+    read_tol_s: float = 2.5e-3  # a quarter of a bus period: late reads (read-instant tags) stay on grid
     time_tol_s: float = 2e-3  # tt-vs-bus-time consistency tolerance beyond one period
     max_tt_jump_samples: int = 400000  # a tt step beyond this is not a run of misses
     reset_window_ticks: int = 100_000_000  # a tt restart below this is a counter reset

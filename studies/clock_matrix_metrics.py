@@ -196,3 +196,15 @@ def param_z(summary: dict, archive: str | Path) -> dict:
     bad = [abs(v) for v in z if math.isfinite(v)]
     return {"n_params": len(z), "max_abs_z": max(bad) if bad else None,
             "n_within_3sigma": int(sum(b <= 3.0 for b in bad))}
+
+
+def true_wraps(msgs: list, tt_true: np.ndarray, t_true: np.ndarray) -> list[float]:
+    """True times [s] of the sawtooth wraps: where the tag error of each sample's first read
+    (the naive time tags) jumps by more than T/2 (a spate counts once)."""
+    from perf.bench_clock import run_clock, wrap_times
+
+    r = run_clock(msgs, "naive")
+    real = r["tt"] >= 0
+    idx = match_truth(r["tt"][real], tt_true)
+    return wrap_times(r["t"][real] - t_true[idx], t_true[idx])
+
