@@ -261,3 +261,34 @@ def _modes(d: Any) -> list[str]:
 
     return ["converged" if not (int(f) & int(Flag.NOT_CONVERGED)) else "converging"
             for f in d.flags]
+
+
+CHROMIUM = "/usr/bin/chromium"
+
+
+def write_pdf(html_path: Path, chromium: str = CHROMIUM) -> Path:
+    """Print the report to PDF (A4) with headless Chromium through Playwright (both optional:
+    ``pip install playwright`` and Debian's ``chromium``; no browser download). Raises
+    RuntimeError with the install hint when either is missing."""
+    import os
+
+    if not os.path.exists(chromium):
+        raise RuntimeError(f"--pdf needs Chromium at {chromium} (apt-get install chromium)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        raise RuntimeError("--pdf needs playwright (pip install playwright; it drives the "
+                           "system Chromium, no browser download)") from None
+    pdf = html_path.with_suffix(".pdf")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium, args=[
+            "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run"])
+        try:
+            page = b.new_page()
+            page.goto(html_path.resolve().as_uri())
+            page.pdf(path=str(pdf), format="A4", print_background=True,
+                     margin={"top": "12mm", "bottom": "12mm", "left": "10mm", "right": "10mm"})
+        finally:
+            b.close()
+    return pdf

@@ -144,7 +144,8 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
 
                 for t in reader.topics:  # source channels first, in the archive's order
                     channel(t)
-                conv, seq = converter_for(reader), {}
+                conv = converter_for(reader)
+                seq: dict[int, int] = {}
                 total = sum(reader.message_counts.values())
                 for topic, t_ns, msg in tqdm(_messages(reader), total=total, unit="msg",
                                              desc="export: write", disable=not progress,

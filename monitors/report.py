@@ -870,6 +870,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-points", type=int, default=1500, metavar="N",
                    help="telemetry packets per archive kept for the figures (default 1500)")
     p.add_argument("--no-figures", action="store_true", help="tables and index only")
+    p.add_argument("--pdf", action="store_true", help="also calibration_report.pdf (headless "
+                   "Chromium through Playwright; both optional)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -885,4 +887,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(f"radical report: {len(res['tables'])} table files, {len(res['figures'])} figures, "
           f"{res['index']}, {res['calibration_report']} ({time.perf_counter() - t0:.1f} s)")
+    if args.pdf:
+        from monitors.calreport import write_pdf
+
+        try:
+            print(f"radical report: {write_pdf(Path(res['calibration_report']))}")
+        except RuntimeError as e:
+            print(f"radical report: {e}", file=sys.stderr)
+            return 2
     return 0

@@ -107,3 +107,13 @@ def test_rendered_in_chromium(report):
     assert tables >= 14
     assert errors == []
     assert all(u.startswith(("file://", "data:")) for u in requests), requests
+
+
+def test_pdf(report):
+    from monitors.calreport import write_pdf
+
+    assert os.path.exists(CHROMIUM), f"{CHROMIUM} not found: make sysdeps"
+    pdf = write_pdf(report["dir"] / "calibration_report.html")
+    data = pdf.read_bytes()
+    assert data.startswith(b"%PDF") and len(data) > 50_000
+    assert len(re.findall(rb"/Type\s*/Page[^s]", data)) >= 3  # tables, residuals, figures
