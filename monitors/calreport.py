@@ -33,8 +33,8 @@ from typing import Any
 import msgpack
 import numpy as np
 
+import radical_rt
 from monitors.common import ARCSEC, GROUP_LABELS, ORDER, PAPER_UNITS, flag_label
-from radical_rt import __version__
 
 _CSS = """body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em;
 color:#222;max-width:1300px}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:13px}
@@ -189,7 +189,7 @@ def write_calibration_report(out: Path, data: list[Any], tables_md: dict[str, st
     h = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
          "<title>RADICAL-RT calibration report</title>", f"<style>{_CSS}</style></head><body>",
          "<h1>RADICAL-RT calibration report</h1>",
-         f"<p class='note'>radical-rt {html.escape(__version__)}, generated "
+         f"<p class='note'>radical-rt {html.escape(radical_rt.__version__)}, generated "
          f"{time.strftime('%Y-%m-%d %H:%M:%S')}. Paper units: "
          + ", ".join(f"{GROUP_LABELS[g]} [{u}]" for g, u in PAPER_UNITS.items())
          + "; residuals in arcsec.</p>", "<h2>1. Run</h2>"]

@@ -258,7 +258,7 @@ def paper_schema() -> dict[str, Any]:
 
 def known_schema(topic: str) -> dict[str, Any] | None:
     """The contract schema of a topic (deep copy), or None."""
-    from replayer.schemas import SCHEMAS
+    from replayer.archive import SCHEMAS  # the contract schemas the archive layer writes
 
     s = SCHEMAS.get(topic)
     return copy.deepcopy(s) if s is not None else None
