@@ -57,27 +57,37 @@ _WARN_FLAGS = (Flag.ST1_EDITED | Flag.ST2_EDITED | Flag.ST1_STALE | Flag.ST2_STA
 
 
 def jsonable(v: Any) -> Any:
-    """A JSON-ready copy: str keys, None/NaN/inf dropped from maps (null inside lists), numpy
-    values as Python numbers, bytes as hex strings."""
-    if isinstance(v, dict):
+    """A JSON-ready version: str keys, None/NaN/inf dropped from maps (null inside lists), numpy
+    values as Python numbers, bytes as hex strings. Lists of finite floats are returned as they
+    are (the messages are freshly decoded and never mutated)."""
+    t = type(v)
+    if t is float:
+        return v if v - v == 0.0 else None  # NaN - NaN and inf - inf are NaN
+    if t is int or t is str or t is bool:
+        return v
+    if t is dict:
         out = {}
         for k, x in v.items():
             y = jsonable(x)
             if y is not None:
-                out[str(k)] = y
+                out[k if type(k) is str else str(k)] = y
         return out
-    if isinstance(v, list | tuple):
+    if t is list:
+        if all(type(x) is float and x - x == 0.0 for x in v):
+            return v
         return [jsonable(x) for x in v]
-    if isinstance(v, bool | str | int):
-        return v
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
+    if isinstance(v, tuple):
+        return [jsonable(x) for x in v]
     if isinstance(v, np.ndarray):
         return jsonable(v.tolist())
     if isinstance(v, np.generic):
         return jsonable(v.item())
     if isinstance(v, bytes | bytearray):
         return bytes(v).hex()
+    if isinstance(v, bool | int | str):
+        return v
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
     return None if v is None else str(v)
 
 

@@ -10,8 +10,9 @@ the trackers), ``/log/faults`` (``foxglove.Log``: fault-flag changes) and ``/pap
 (estimates, 1σ, truth, error/σ in deg/hr, ppm, arcsec). Values stay SI elsewhere. Log and publish
 times are kept (bus time). Metadata records are copied; ``radical.export`` is added.
 
-Two passes over IN: the first merges the shapes of the messages into the schemas, the second
-writes. Exit status 0, or 2 with a one-line error (missing file, not an MCAP archive, …).
+Two passes over IN: the first merges the shapes of the messages into the schemas (every message
+of small channels; of large ones the first 2000 and every 10th after; 200 of the fixed-shape
+contract channels), the second writes. Exit status 0, or 2 with a one-line error (missing file, not an MCAP archive, …).
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ from monitors.fox_schema import SchemaBuilder, known_schema
 #: topics whose shape is fixed by the contract: their schema is inferred from the first messages
 _FIXED = {"/siru", "/st1", "/st2", "/temp", "/tlm/small", "/truth/attitude", "/truth/siru_time"}
 _FIXED_SAMPLE = 200
+#: other channels: every message up to this many, then every _STRIDE-th
+_FULL_UP_TO, _STRIDE = 2000, 10
 
 
 class ExportError(Exception):
@@ -68,8 +71,15 @@ def build_schemas(reader: Any, progress: bool = False) -> dict[str, dict[str, An
     conv = converter_for(reader)
     builders: dict[str, SchemaBuilder] = {}
     total = sum(reader.message_counts.values())
-    for topic, t_ns, msg in tqdm(_messages(reader), total=total, desc="export: schemas",
-                                 unit="msg", disable=not progress, file=sys.stderr, leave=False):
+    for topic, t_ns, data in tqdm(reader.iter_raw(), total=total, desc="export: schemas",
+                                  unit="msg", disable=not progress, file=sys.stderr, leave=False):
+        b = builders.get(topic)
+        if topic in _FIXED and b is not None and b.count >= _FIXED_SAMPLE:
+            continue  # fixed shape, already sampled: not even decoded
+        try:
+            msg = msgpack.unpackb(data, raw=False, strict_map_key=False)
+        except Exception:
+            continue
         for out_topic, jm in conv.convert(topic, t_ns, msg):
             if out_topic in DERIVED_SCHEMAS:
                 continue
@@ -80,8 +90,14 @@ def build_schemas(reader: Any, progress: bool = False) -> dict[str, dict[str, An
                     known = siru_known_schema(known)
                 desc = (known or {}).get("description") or f"{out_topic} messages (SI units)"
                 b = builders[out_topic] = SchemaBuilder(_schema_title(out_topic), desc, known)
-            if out_topic not in _FIXED or b.count < _FIXED_SAMPLE:
-                b.observe(jm)
+            n = reader.message_counts.get(topic, 0)
+            if out_topic in _FIXED:
+                if b.count < _FIXED_SAMPLE:
+                    b.observe(jm)
+            elif n <= _FULL_UP_TO or b.count < _FULL_UP_TO or b.count % _STRIDE == 0:
+                b.observe(jm)  # large free-form channels: the first ones, then a sample
+            else:
+                b.count += 1
     schemas = {t: b.schema() for t, b in builders.items()}
     for t in reader.topics:  # channels without a decodable message still get an object schema
         if t not in schemas:
