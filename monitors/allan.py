@@ -136,11 +136,11 @@ def table(results: list[GyroResult], truth: dict[str, float] | None) -> str:
 
 
 def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev: float,
-              per_decade: int) -> dict[str, Any]:
+              per_decade: int, progress: bool = False) -> dict[str, Any]:
     from replayer.archive import read_scenario
 
     t0, t1 = parse_segment(segment)
-    seg = load_segment(path, t0, t1)
+    seg = load_segment(path, t0, t1, progress)
     if seg.max_rate_dev_deg_s > max_rate_dev:
         raise AllanError(f"{path}: the segment is not static: 10 s mean gyro rates move by "
                          f"{seg.max_rate_dev_deg_s:.3g} deg/s (> --max-rate-dev "
@@ -198,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(f"radical allan: reading {args.input} ...", file=sys.stderr)
     try:
-        res = run_allan(args.input, args.out, args.segment, args.max_rate_dev, args.per_decade)
+        res = run_allan(args.input, args.out, args.segment, args.max_rate_dev, args.per_decade,
+                        progress=sys.stderr.isatty())
     except AllanError as e:
         print(f"radical allan: {e}", file=sys.stderr)
         return 2

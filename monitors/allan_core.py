@@ -58,9 +58,14 @@ class Segment:
     max_rate_dev_deg_s: float = 0.0  # largest 10 s mean rate minus the median (deg/s)
 
 
-def load_segment(path: str, t0: float | None = None, t1: float | None = None) -> Segment:
-    """The /siru samples of ``path`` with ``t0 <= t_bus <= t1`` (s; None = open)."""
+def load_segment(path: str, t0: float | None = None, t1: float | None = None,
+                 progress: bool = False) -> Segment:
+    """The /siru samples of ``path`` with ``t0 <= t_bus <= t1`` (s; None = open); a progress
+    bar on stderr with ``progress``."""
+    import sys
+
     import msgpack
+    from tqdm import tqdm
 
     from replayer.archive import ArchiveError, ArchiveReader
 
@@ -77,7 +82,10 @@ def load_segment(path: str, t0: float | None = None, t1: float | None = None) ->
                 raise AllanError(f"{path}: no /siru messages (an input archive is needed)")
             start = None if t0 is None else int(round(t0 * 1e9))
             end = None if t1 is None else int(round(t1 * 1e9)) + 1
-            for _topic, _ns, data in reader.iter_raw("/siru", start, end):
+            for _topic, _ns, data in tqdm(reader.iter_raw("/siru", start, end),
+                                          total=reader.message_counts["/siru"], unit="msg",
+                                          desc="allan: /siru", disable=not progress,
+                                          file=sys.stderr, leave=False):
                 m = msgpack.unpackb(data, raw=False, strict_map_key=False)
                 tt += m["tt"]
                 tb += m["t_bus"]

@@ -23,7 +23,6 @@ const client = new FoxgloveClient({ ws });
 const out = { protocol: null, serverInfo: null, channels: {}, counts: {}, errors: [], officialErrors: [],
   first: {}, last: {}, logTexts: [] };
 const bySub = new Map();
-let nextSub = 1;
 const done = (code) => {
   try { client.close(); } catch { /* closing twice */ }
   process.stdout.write(JSON.stringify(out));
@@ -40,14 +39,11 @@ client.on("advertise", (channels) => {
   for (const ch of channels) {
     out.channels[ch.topic] = { encoding: ch.encoding, schemaName: ch.schemaName,
       schemaEncoding: ch.schemaEncoding, schemaType: JSON.parse(ch.schema || "{}").type ?? null };
-    const sub = nextSub++;
-    bySub.set(sub, ch);
-    client.subscribe(ch.id);
+    bySub.set(client.subscribe(ch.id), ch);
   }
 });
 client.on("message", ({ subscriptionId, timestamp, data }) => {
-  // ws-protocol numbers subscriptions from 0 in call order
-  const ch = bySub.get(subscriptionId + 1);
+  const ch = bySub.get(subscriptionId);
   if (!ch) return;
   let msg;
   try {
