@@ -174,3 +174,27 @@ def test_export_errors(tmp_path, capsys):
     assert "not an MCAP archive" in capsys.readouterr().err
     assert main(["export", str(bad), "-o", str(tmp_path / "x.mcap")]) == 2
     assert "--foxglove" in capsys.readouterr().err
+
+
+def test_json_and_schema_rules():
+    """The Foxglove/Lichtblick subset: no arrays of arrays, one type per field, object schemas."""
+    from monitors.fox_convert import jsonable, siru_columns
+    from monitors.fox_schema import SchemaBuilder, check_foxglove_subset
+
+    m = jsonable({"a": float("nan"), "b": [1.0, float("inf"), 2.0], 3: {"x": None, "y": 1},
+                  "c": (1, 2), "d": np.float64(2.5), "e": [np.int64(4)]})
+    assert m == {"b": [1.0, None, 2.0], "3": {"y": 1}, "c": [1, 2], "d": 2.5, "e": [4]}
+    assert siru_columns({"dtheta": [[1.0, 2.0], [3.0, 4.0]]})["dtheta"] == {"A": [1.0, 3.0],
+                                                                              "B": [2.0, 4.0]}
+    b = SchemaBuilder("t", "test")
+    b.observe({"n": 1, "rate_ppm": [1, 2], "m": {"k_s": True}})
+    b.observe({"n": 1.5, "rate_ppm": [], "m": {"k_s": False}, "extra": "x"})
+    s = b.schema()
+    assert s["properties"]["n"]["type"] == "number"  # int and float merged
+    assert s["properties"]["rate_ppm"]["items"]["type"] == "integer"
+    assert "(ppm)" in s["properties"]["rate_ppm"]["description"]
+    assert s["properties"]["extra"]["type"] == "string"
+    assert check_foxglove_subset(s) == []
+    bad = {"type": "object", "properties": {"v": {"const": 1},
+                                            "a": {"type": "array", "items": {"type": "array"}}}}
+    assert len(check_foxglove_subset(bad)) == 2
