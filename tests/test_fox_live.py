@@ -66,7 +66,12 @@ def test_live_foxglove_bridge(tmp_path):
         js = subprocess.Popen([node_exe, str(JS / "ws_client.mjs"), f"ws://127.0.0.1:{port}",
                                "60", "5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
-        time.sleep(1.5)  # the client connects and subscribes to the advertised channels
+        # wait until the client has subscribed to the channels advertised at start
+        got: list[str] = []
+        t = threading.Thread(target=lambda: got.append(js.stderr.readline()), daemon=True)
+        t.start()
+        t.join(30)
+        assert got and got[0].strip() == "subscribed", f"the ws client did not subscribe: {got}"
         # the node comes up after the client subscribed: its liveliness token reaches the
         # client as a foxglove.Log message (the bridge's peer session keeps retrying to connect)
         node = FilterNode(ZenohTransport("peer", listen=[ep]), build_processors(["fx"]),

@@ -41,6 +41,10 @@ client.on("advertise", (channels) => {
       schemaEncoding: ch.schemaEncoding, schemaType: JSON.parse(ch.schema || "{}").type ?? null };
     bySub.set(client.subscribe(ch.id), ch);
   }
+  if (!out.ready) {  // the first advertisement is subscribed: tell the test to start the node
+    out.ready = true;
+    process.stderr.write("subscribed\n");
+  }
 });
 client.on("message", ({ subscriptionId, timestamp, data }) => {
   const ch = bySub.get(subscriptionId);
