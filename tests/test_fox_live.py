@@ -59,7 +59,7 @@ def test_live_foxglove_bridge(tmp_path):
         [sys.executable, "-m", "radical_rt.cli", "monitor", "foxglove", "--vehicle", "fx",
          "--port", str(port), "--connect", ep, "--duration", "90"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    node = client = None
+    node = client = js = None
     try:
         line = _read_line(bridge, "ws://", 30)
         assert f"ws://127.0.0.1:{port}" in line
@@ -92,6 +92,9 @@ def test_live_foxglove_bridge(tmp_path):
         assert js.returncode == 0, stderr[-2000:]
         rd = json.loads(stdout)
     finally:
+        if js is not None and js.poll() is None:
+            js.kill()
+            js.wait()
         if client is not None:
             client.close()
         if node is not None:
