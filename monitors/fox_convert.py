@@ -11,7 +11,8 @@ SI units) with its topic and MCAP log time and returns the JSON messages to publ
   ``/tlm/small``, else ``/tlm/medium`` or ``/tlm/large``), ``/tf/body_truth`` (inertial →
   body_truth, from ``/truth/attitude``), ``/tf/st1`` (body → st1, the contract's fixed mounting)
   and ``/tf/st2`` (body → st2 with the estimated misalignment phi2), both at each packet that
-  carries ``est``; rotations are ``q_parent_from_child`` (Foxglove: the child's orientation in the
+  carries ``est``, and ``/tf/st2_truth`` (body → st2_truth, the true phi2 of each
+  ``/truth/params``: next to st2 it shows the misalignment error); rotations are ``q_parent_from_child`` (Foxglove: the child's orientation in the
   parent), translations zero (the frames share an origin);
 * ``foxglove.Log`` on ``/log/faults`` for every ``/fault`` message (flags set and cleared, by
   name; level ERROR for failures, WARNING for edits/staleness/gaps, INFO otherwise);
@@ -40,7 +41,8 @@ R_ST2_FROM_BODY_NOM = np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]])
 GYRO_NAMES = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 TF_TOPICS = {"/tf/body": ("inertial", "body"), "/tf/body_truth": ("inertial", "body_truth"),
-             "/tf/st1": ("body", "st1"), "/tf/st2": ("body", "st2")}
+             "/tf/st1": ("body", "st1"), "/tf/st2": ("body", "st2"),
+             "/tf/st2_truth": ("body", "st2_truth")}
 LOG_TOPIC = "/log/faults"
 PAPER_TOPIC = "/paper/calibration"
 #: derived topic -> (schema name, schema) for the channels made here
@@ -199,6 +201,10 @@ class FoxgloveConverter:
                                                               "body_truth", inverse_quat(q))))
         elif topic == "/truth/params":
             self._truth = msg
+            q2 = q_body_from_st2(msg.get("phi2"))
+            if q2 is not None:
+                out.append(("/tf/st2_truth", frame_transform(log_time_ns, "body", "st2_truth",
+                                                             q2)))
         elif topic == "/fault":
             out.append((LOG_TOPIC, fault_log(log_time_ns, msg)))
         return out

@@ -70,7 +70,8 @@ class FoxgloveBridge:
         self.server = foxglove.start_server(name=f"radical-rt {self.vehicle}", host="127.0.0.1",
                                             port=self.port, context=self._ctx)
         for topic in DERIVED_SCHEMAS:  # known schemas: advertised at once (panels can be set up)
-            self._channels[topic] = self._channel(topic, {})
+            if "truth" not in topic:  # the node publishes no truth
+                self._channels[topic] = self._channel(topic, {})
         listen, connect = zconfig.endpoints(self.listen, self.connect, role="monitor")
         cfg = zconfig.make_config("peer", listen=listen, connect=connect,
                                   config_file=self.zenoh_config)

@@ -81,8 +81,11 @@ def test_frame_transforms(exported):
     assert ch["/tf/body"]["count"] == counts["/tlm/small"]  # attitude at the fastest packet
     assert ch["/tf/st2"]["count"] == counts["/tlm/large"]
     assert out["frames"] == {"inertial->body": counts["/tlm/small"],
-                             "body->st1": counts["/tlm/large"], "body->st2": counts["/tlm/large"]}
-    assert sim["frames"] == {"inertial->body_truth": _counts(exported["sim"])["/truth/attitude"]}
+                             "body->st1": counts["/tlm/large"], "body->st2": counts["/tlm/large"],
+                             "body->st2_truth": counts["/truth/params"]}
+    sim_counts = _counts(exported["sim"])
+    assert sim["frames"] == {"inertial->body_truth": sim_counts["/truth/attitude"],
+                             "body->st2_truth": sim_counts["/truth/params"]}
 
     def rot(m):
         r = m["msg"]["rotation"]
@@ -102,6 +105,15 @@ def test_frame_transforms(exported):
     r_st2_from_body = nom @ Rotation.from_rotvec(large[-1]["est"]["phi2"]).as_matrix().T
     assert np.allclose(rot(out["lastMessages"]["/tf/st2"]).as_matrix(), r_st2_from_body.T,
                        atol=1e-12)
+    # st2_truth: the same formula with the true phi2; st2 and st2_truth differ by the error
+    with ArchiveReader(exported["out"]) as r:
+        tp = [m for _t, _ns, m in r.iter_messages("/truth/params")][-1]
+    r_true = nom @ Rotation.from_rotvec(tp["phi2"]).as_matrix().T
+    st2t = rot(out["lastMessages"]["/tf/st2_truth"])
+    assert np.allclose(st2t.as_matrix(), r_true.T, atol=1e-12)
+    err = np.array(large[-1]["est"]["phi2"]) - np.array(tp["phi2"])
+    assert (st2t.inv() * rot(out["lastMessages"]["/tf/st2"])).magnitude() == pytest.approx(
+        np.linalg.norm(err), rel=1e-3, abs=1e-9)
     # body: rotation = q_inertial_from_body; the estimate lies within 30″ of the truth
     last_ns, last = small[-1]
     fb = out["lastMessages"]["/tf/body"]

@@ -123,7 +123,8 @@ for await (const m of reader.readMessages()) {
 }
 out.outOfOrder = outOfOrder;
 // keep the summary small: only a few topics' first/last messages in full
-const keep = new Set(["/tf/body", "/tf/body_truth", "/tf/st1", "/tf/st2", "/log/faults",
+const keep = new Set(["/tf/body", "/tf/body_truth", "/tf/st1", "/tf/st2", "/tf/st2_truth",
+  "/log/faults",
   "/paper/calibration", "/tlm/large", "/truth/attitude", "/siru"]);
 for (const k of Object.keys(out.firstMessages)) {
   if (!keep.has(k)) { delete out.firstMessages[k]; delete out.lastMessages[k]; }
