@@ -52,6 +52,7 @@ DERIVED_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     PAPER_TOPIC: ("radical.paper.calibration", paper_schema()),
 }
 
+_RANK = {"/tlm/small": 0, "/tlm/medium": 1, "/tlm/large": 2}  # attitude source preference
 _ERROR_FLAGS = (Flag.PARITY_ALARM | Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED
                 | Flag.GYRO_D_FAILED | Flag.NUMERIC)
 _WARN_FLAGS = (Flag.ST1_EDITED | Flag.ST2_EDITED | Flag.ST1_STALE | Flag.ST2_STALE
@@ -180,7 +181,9 @@ def fault_log(log_time_ns: int, msg: dict[str, Any]) -> dict[str, Any]:
 
 class FoxgloveConverter:
     """Stateful converter of one stream (see module doc). ``att_topic``: the telemetry topic
-    whose attitude drives ``/tf/body`` (None: the first of /tlm/small, medium, large seen)."""
+    whose attitude drives ``/tf/body`` (None: the fastest of /tlm/small, medium, large seen so
+    far); ``cal_topic``: the one that drives the calibration channels (None: large, else
+    medium)."""
 
     def __init__(self, att_topic: str | None = None, cal_topic: str | None = None) -> None:
         self.att_topic, self.cal_topic = att_topic, cal_topic
@@ -211,8 +214,8 @@ class FoxgloveConverter:
 
     def _tlm(self, topic: str, ns: int, msg: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
         out = []
-        if self.att_topic is None and "q_body_from_inertial" in msg:
-            self.att_topic = topic
+        if "q_body_from_inertial" in msg and _RANK.get(topic, 9) < _RANK.get(self.att_topic, 10):
+            self.att_topic = topic  # live: the fastest packet seen so far drives /tf/body
         if topic == self.att_topic:
             q = _quat(msg.get("q_body_from_inertial"))
             if q is not None:

@@ -6,7 +6,7 @@
 // subprotocol "foxglove.sdk.v1", subscribes to every advertised channel, decodes the JSON
 // messages, validates foxglove.FrameTransform and foxglove.Log messages against the schemas
 // Foxglove publishes (@foxglove/schemas) and stops after SECONDS, or as soon as every advertised
-// channel among the expected ones has MIN_PER_TOPIC messages.
+// channel among the expected ones has MIN_PER_TOPIC messages and a log said the node is gone.
 import WebSocket from "ws";
 import wsProtocol from "@foxglove/ws-protocol";
 import Ajv from "ajv";
@@ -30,7 +30,8 @@ const done = (code) => {
 };
 const check = () => {
   const have = expected.filter((t) => t in out.channels && t !== "/log/faults");
-  if (have.length >= 8 && have.every((t) => (out.counts[t] ?? 0) >= minPer)) done(0);
+  const gone = out.logTexts.some((t) => t.includes(" gone"));
+  if (have.length >= 8 && have.every((t) => (out.counts[t] ?? 0) >= minPer) && gone) done(0);
 };
 ws.on("open", () => { out.protocol = ws.protocol; });
 client.on("serverInfo", (info) => { out.serverInfo = { name: info.name, capabilities: info.capabilities }; });
