@@ -214,7 +214,8 @@ class FoxgloveConverter:
 
     def _tlm(self, topic: str, ns: int, msg: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
         out = []
-        if "q_body_from_inertial" in msg and _RANK.get(topic, 9) < _RANK.get(self.att_topic, 10):
+        current = _RANK.get(self.att_topic, 10) if self.att_topic is not None else 10
+        if "q_body_from_inertial" in msg and _RANK.get(topic, 9) < current:
             self.att_topic = topic  # live: the fastest packet seen so far drives /tf/body
         if topic == self.att_topic:
             q = _quat(msg.get("q_body_from_inertial"))
