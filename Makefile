@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out
 
-.PHONY: demo test venv lint bench bench-quick clean sysdeps
+.PHONY: demo test venv lint bench bench-quick clean sysdeps jsdeps
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -25,7 +25,16 @@ sysdeps:
 	  echo "installing Debian chromium for the dashboard browser test"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 
-test: $(STAMP) sysdeps
+# Independent readers for the Foxglove tests (@mcap/core, @foxglove/ws-protocol, @foxglove/schemas,
+# ajv): installed from tests/js/package-lock.json with npm (node >= 18).
+JS_STAMP := tests/js/node_modules/.installed
+$(JS_STAMP): tests/js/package.json tests/js/package-lock.json
+	npm ci --prefix tests/js --no-audit --no-fund --ignore-scripts
+	touch $(JS_STAMP)
+
+jsdeps: $(JS_STAMP)
+
+test: $(STAMP) sysdeps jsdeps
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)

@@ -1,14 +1,17 @@
-"""Live dashboards over Zenoh: ``radical monitor tui|web``.
+"""Live dashboards over Zenoh: ``radical monitor tui|web|foxglove``.
 
     radical monitor tui [--vehicle V] [--listen EP | --connect EP] [--refresh S]
     radical monitor web [--vehicle V] [--port P] [--listen EP | --connect EP]
+    radical monitor foxglove --vehicle V [--port P] [--listen EP | --connect EP]
 
 Both subscribe to ``radical/<V>/tlm/*``, ``fault``, ``diag`` (all vehicles when --vehicle is not
 given; the first one seen is shown) and the liveliness tokens ``radical/<V>/alive/filter``. With
 neither --listen nor --connect they connect to the node's default endpoint
 (``tcp/127.0.0.1:7448``). Endpoints must be loopback locators; multicast scouting is off. The web
 server binds 127.0.0.1 only. Exit status 0, 1 on a Zenoh or server failure, 2 on a bad option or
-a missing optional package (textual for tui, bokeh for web).
+a missing optional package (textual for tui, bokeh for web, foxglove-sdk for foxglove). The
+foxglove bridge (monitors/fox_live.py) is a Foxglove WebSocket server on 127.0.0.1 for the
+Foxglove app or Lichtblick.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="monitor", metavar="{tui,web}")
+    sub = parser.add_subparsers(dest="monitor", metavar="{tui,web,foxglove}")
     tui = sub.add_parser("tui", help="terminal dashboard (textual)")
     _common(tui)
     tui.add_argument("--refresh", type=float, default=0.5, metavar="S",
@@ -41,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="browser update period in ms (default 250 = 4 Hz)")
     web.add_argument("--keep", type=int, default=3600,
                      help="tlm/large packets kept per vehicle in the plots (default 3600)")
+    fox = sub.add_parser("foxglove", help="Foxglove WebSocket server on 127.0.0.1 (foxglove-sdk)")
+    _common(fox)
+    fox.add_argument("--port", type=int, default=8765,
+                     help="WebSocket port on 127.0.0.1 (default 8765; 0 = any free port)")
+    fox.add_argument("--duration", type=float, default=None, metavar="S",
+                     help="stop after S seconds (default: until SIGINT/SIGTERM)")
 
 
 def _err(msg: str) -> int:
@@ -50,8 +59,8 @@ def _err(msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     kind = getattr(args, "monitor", None)
-    if kind not in ("tui", "web"):
-        return _err("choose a dashboard: radical monitor tui | radical monitor web")
+    if kind not in ("tui", "web", "foxglove"):
+        return _err("choose a dashboard: radical monitor tui | web | foxglove")
     if args.vehicle is not None and not VEHICLE_RE.match(args.vehicle):
         return _err(f"--vehicle {args.vehicle!r} must match [a-z0-9_-]+")
     from radical_rt import zconfig
@@ -72,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
         except Exception as e:  # zenoh session failures
             print(f"radical monitor tui: {type(e).__name__}: {e}", file=sys.stderr)
             return 1
+    if kind == "foxglove":
+        return _run_foxglove(args)
     if not (0 < args.port < 65536):
         return _err(f"--port {args.port} out of range")
     if args.period_ms < 50 or args.period_ms > 500:
@@ -96,3 +107,18 @@ def run(args: argparse.Namespace) -> int:
         source.close()
         print(f"radical monitor web: cannot serve on 127.0.0.1:{args.port}: {e}", file=sys.stderr)
         return 1
+
+
+def _run_foxglove(args: argparse.Namespace) -> int:
+    if args.vehicle is None:
+        return _err("radical monitor foxglove needs --vehicle V")
+    if not (0 <= args.port < 65536):
+        return _err(f"--port {args.port} out of range")
+    if args.duration is not None and args.duration <= 0:
+        return _err("--duration must be > 0")
+    try:
+        from monitors.fox_live import serve as serve_foxglove
+    except ImportError as e:
+        return _err(f"the foxglove bridge needs foxglove-sdk (pip install foxglove-sdk): {e}")
+    return serve_foxglove(args.vehicle, args.port, args.listen, args.connect, args.zenoh_config,
+                          args.duration)

@@ -14,7 +14,10 @@ present) and writes into DIR:
   estimates and σ) per archive; with two or more archives ``fig7.png`` (δu, δv side by side) and
   ``fig8.png`` (ST2 misalignment side by side, with the ST2 baseplate temperature when ``/diag``
   carries it);
-* ``index.html`` showing all of it (relative links, no external resources).
+* ``index.html`` showing all of it (relative links, no external resources);
+* ``calibration_report.html``: one self-contained file (figures inline) with run metadata,
+  Tables 2–7 with σ, convergence times, residual statistics and NIS, edits and faults
+  (:mod:`monitors.calreport`).
 
 The tables use the last telemetry packet of each archive; figures decimate to ``--max-points``
 packets per archive (the last one is always kept). Exit status 0, or 2 with a one-line error
@@ -849,7 +852,11 @@ def make_report(paths: list[str], out_dir: str | Path, labels: str | None = None
             figs.append(("fig8.png", "Figure 8: ST2 misalignment estimates and σ (with ST2 "
                          "baseplate temperature), archives side by side"))
     write_index(out, data, tables_md, figs)
+    from monitors.calreport import write_calibration_report
+
+    cal = write_calibration_report(out, data, tables_md, figs)
     return {"tables": written, "figures": [f for f, _ in figs], "index": str(out / "index.html"),
+            "calibration_report": str(cal),
             "archives": [{"label": d.label, "path": d.path, "packets": d.n_packets,
                           "decimated": len(d.t)} for d in data]}
 
@@ -863,6 +870,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-points", type=int, default=1500, metavar="N",
                    help="telemetry packets per archive kept for the figures (default 1500)")
     p.add_argument("--no-figures", action="store_true", help="tables and index only")
+    p.add_argument("--pdf", action="store_true", help="also calibration_report.pdf (headless "
+                   "Chromium through Playwright; both optional)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -877,5 +886,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"radical report: {e}", file=sys.stderr)
         return 2
     print(f"radical report: {len(res['tables'])} table files, {len(res['figures'])} figures, "
-          f"{res['index']} ({time.perf_counter() - t0:.1f} s)")
+          f"{res['index']}, {res['calibration_report']} ({time.perf_counter() - t0:.1f} s)")
+    if args.pdf:
+        from monitors.calreport import write_pdf
+
+        try:
+            print(f"radical report: {write_pdf(Path(res['calibration_report']))}")
+        except RuntimeError as e:
+            print(f"radical report: {e}", file=sys.stderr)
+            return 2
     return 0

@@ -21,6 +21,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "monitor": ("monitors.cli", "live dashboards (web, tui)"),
     "report": ("monitors.report", "paper-style tables and figures from an output archive"),
     "bench": ("perf.cli", "run the benchmark suite"),
+    "export": ("monitors.fox_export", "re-encode an archive for Foxglove / Lichtblick (json)"),
+    "allan": ("monitors.allan", "Allan deviation and gyro noise parameters from a static segment"),
 }
 
 

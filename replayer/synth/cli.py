@@ -1,6 +1,6 @@
 """Synthesize a MESSENGER-like telemetry archive (MCAP) from a scenario.
 
-SCENARIO is a built-in name (2005300, 2005301, 2006216, original, alternate) or a TOML file
+SCENARIO is a built-in name (2005300, 2005301, 2006216, original, alternate, static) or a TOML file
 (`base = "2006216"` inherits a built-in; `radical synth --print-default [NAME]` prints the full
 default scenario as TOML). See docs/scenarios.md for every key and the maneuver timelines.
 

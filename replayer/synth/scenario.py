@@ -3,7 +3,8 @@
 ``load_scenario(name_or_path)`` returns a :class:`Scenario`: the validated nested configuration
 (paper units, as in the TOML) plus the resolved truth parameters in SI. Built-ins: ``2005300``,
 ``2005301``, ``2006216`` (the paper's Tables 2–7 rows, MESSENGER maneuver of Fig. 3) and
-``original``, ``alternate`` (Fig. 2a/2b maneuvers, truth drawn uniformly on Table 1's [−L, L]).
+``original``, ``alternate`` (Fig. 2a/2b maneuvers, truth drawn uniformly on Table 1's [−L, L]),
+``static`` (4 h inertial hold with every SIRU noise term on, for ``radical allan``).
 """
 
 from __future__ import annotations
@@ -48,6 +49,11 @@ BUILTINS: dict[str, dict] = {
                  "maneuver": {"profile": "original"}, "truth": {"source": "uniform"}},
     "alternate": {"name": "alternate", "seed": 1002, "duration_s": 4000.0,
                   "maneuver": {"profile": "alternate"}, "truth": {"source": "uniform"}},
+    # Inertial hold for gyro noise characterization (radical allan): no maneuver; angle random
+    # walk, bias instability, bias random walk and quantization all on (docs/monitors.md).
+    "static": {"name": "static", "seed": 952, "duration_s": 14400.0,
+               "maneuver": {"profile": "none"}, "truth": {"source": "2006216"},
+               "siru": {"bias_instability_deg_hr": 0.005}},
 }
 
 
@@ -199,7 +205,8 @@ def _check_siru(s: dict) -> None:
              "must be in [0, bus_period_s/20]")
     _require(0 <= s["tt0"] < 2**32, "siru.tt0", "must be in [0, 2**32)")
     _require(all(x > 0 for x in s["tt_reset_s"]), "siru.tt_reset_s", "times must be > 0")
-    for k in ("arw_deg_sqrt_hr", "bias_rw_rad_s_sqrt_s", "quantum_arcsec"):
+    for k in ("arw_deg_sqrt_hr", "bias_rw_rad_s_sqrt_s", "quantum_arcsec",
+              "bias_instability_deg_hr"):
         _require(s[k] >= 0, f"siru.{k}", "must be ≥ 0")
     _require(s["batch"] >= 1, "siru.batch", "must be ≥ 1")
     _check_read_timing(s)

@@ -71,6 +71,8 @@ SPEC: dict[str, Any] = {
         "tt_reset_s": F("float[]", [], "times (s from run start) of time-tag counter resets"),
         "arw_deg_sqrt_hr": F("float", 1.5e-4, "angle random walk, deg/√hr"),
         "bias_rw_rad_s_sqrt_s": F("float", 1e-11, "bias random walk, rad/s/√s"),
+        "bias_instability_deg_hr": F("float", 0.0, "bias instability B (flicker bias, IEEE Std 952: "
+                                     "Allan floor 0.664·B), deg/hr (0 = none)"),
         "quantum_arcsec": F("float", 0.01, "quantum of the accumulated angle, arcsec (0 = none)"),
         "batch": F("int", 10, "bus reads per /siru message"),
         # Bus-read timing (optional; absent = the defaults in TIMING_DEFAULTS, so that archives of

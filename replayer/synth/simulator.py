@@ -140,7 +140,8 @@ class Simulator:
                 self.trackers[name] = Tracker(name, cfg["trackers"], out, rngs)
         if full:
             self.siru = SiruModel(cfg, sc.truth, self.profile,
-                                  {k: stream(seed, f"siru.{k}") for k in ("arw", "bias_rw", "burst")})
+                                  {k: stream(seed, f"siru.{k}")
+                                   for k in ("arw", "bias_rw", "burst", "bias_flicker")})
             self.temp_rng = stream(seed, "temp")
         self.truth = sc.truth
         self.last: tuple | None = None  # (k, t, tt, dtheta (n,), status) of the latest sample

@@ -6,8 +6,8 @@ For sample k covering the true interval (t_{k−1}, t_k] with body rotation vect
     dtheta_i,k = (1 + lam_i + mu_i·sgn(g_i))·g_i + b_i(t_mid)·(t_k − t_{k−1}) + ARW + bursts
 
 then the running sum of dtheta is quantized (quantum q) and the outputs are its differences, so
-quantization error does not accumulate. b(t) = b0 + bias random walk (piecewise linear on 1 s
-knots) + bias faults; lam(t) = lam0 + scale-factor faults. Stuck/zero faults act on the output;
+quantization error does not accumulate. b(t) = b0 + bias random walk (piecewise linear on 1 s knots)
++ bias instability (flicker, 1/f, on 0.1 s knots) + bias faults; lam(t) = lam0 + scale-factor faults. Stuck/zero faults act on the output;
 invalid-status faults set status bit i. Arrays: (m,) per sample, (m, n) per sample and gyro; SI.
 """
 
@@ -20,12 +20,32 @@ from radical_rt.geometry import U_NOM, V_NOM, W_NOM
 
 #: Bias random-walk knot spacing (s).
 KNOT_S = 1.0
+#: Bias-instability (flicker) knot spacing (s): the discrete flicker's Allan deviation follows the
+#: 1/f law from a few knots on (7 % high at 2 knots, 1 % at 5), i.e. from τ ≈ 0.5 s.
+FLICKER_KNOT_S = 0.1
 
 
 def true_axes(du: np.ndarray, dv: np.ndarray, W=W_NOM, U=U_NOM, V=V_NOM) -> np.ndarray:
     """True sense axes (3, n): columns normalize(w_i − du_i·v_i − dv_i·u_i) (du, dv in rad)."""
     wt = W - V * du[None, :] - U * dv[None, :]
     return wt / np.linalg.norm(wt, axis=0, keepdims=True)
+
+
+def flicker_bias(n_knots: int, n: int, b_rad_s: float, rng) -> np.ndarray:
+    """Flicker (1/f) bias (n_knots, n) rad/s on equally spaced knots, bias instability ``b_rad_s``.
+
+    IEEE Std 952 bias instability B: two-sided rate PSD S(f) = B²/(2π|f|), whose Allan variance
+    plateau is σ² = (2 ln 2/π)·B² (σ ≈ 0.664·B). Generated with Kasdin & Walter's filter (Proc.
+    IEEE FCS 1992): x = h ∗ w with h_0 = 1, h_k = h_{k−1}·(k − 1 + α/2)/k, α = 1, and white w of
+    variance Q_d, whose PSD is Q_d·Δ/|2 sin(π f Δ)|^α ≈ Q_d/(2π f); hence Q_d = B². The linear
+    convolution is done by FFT (zero-padded, no wrap-around).
+    """
+    k = np.arange(1, n_knots, dtype=float)
+    h = np.concatenate([[1.0], np.cumprod((k - 0.5) / k)])
+    w = rng.standard_normal((n_knots, n)) * b_rad_s
+    nfft = 1 << int(np.ceil(np.log2(2 * n_knots)))
+    x = np.fft.irfft(np.fft.rfft(h, nfft)[:, None] * np.fft.rfft(w, nfft, axis=0), nfft, axis=0)
+    return x[:n_knots]
 
 
 def _active(f: dict, t: np.ndarray, t_start: float) -> np.ndarray:
@@ -58,6 +78,11 @@ class SiruModel:
         steps = rngs["bias_rw"].standard_normal((n_knots, self.n)) * s["bias_rw_rad_s_sqrt_s"]
         steps[0] = 0.0
         self.rw = np.cumsum(steps * np.sqrt(KNOT_S), axis=0)  # (n_knots, n) rad/s
+        bi = s.get("bias_instability_deg_hr", 0.0) * DEG_PER_HR
+        self.flicker = None  # drawn only when on: scenarios without it keep their exact outputs
+        if bi > 0.0:
+            n_fk = int(np.ceil(cfg["duration_s"] / FLICKER_KNOT_S)) + 3
+            self.flicker = flicker_bias(n_fk, self.n, bi, rngs["bias_flicker"])
         self.sum = np.zeros(self.n)  # running sum of the continuous increments (rad)
         self.count = np.zeros(self.n)  # quantized running sum, in quanta
         self.last_out = np.zeros(self.n)
@@ -69,6 +94,11 @@ class SiruModel:
         i = x.astype(int)
         w = (x - i)[:, None]
         b = self.b0[None, :] + (1.0 - w) * self.rw[i] + w * self.rw[i + 1]
+        if self.flicker is not None:
+            x = np.clip((t - self.t_start) / FLICKER_KNOT_S, 0.0, self.flicker.shape[0] - 1.000001)
+            i = x.astype(int)
+            w = (x - i)[:, None]
+            b += (1.0 - w) * self.flicker[i] + w * self.flicker[i + 1]
         for f in self.faults:
             g = f.get("gyro")
             if f["kind"] == "bias_step":
