@@ -18,6 +18,7 @@ from .conventions import SIRU_TT_WRAP
 
 QUAT_NORM_TOL = 1e-3  # |‖q‖ − 1| above this is a non-unit quaternion
 MAX_SIRU_BATCH = 10000
+MAX_N_STARS = 1000  # a tracker reporting more stars is wrong (and 2**63 would not fit an int64)
 
 
 class InputError(ValueError):
@@ -125,7 +126,7 @@ def decode_tracker(msg: dict):
     problem (:func:`_decode_tracker_checked`)."""
     t, q, n_stars, valid = (msg.get("t_bus"), msg.get("q"), msg.get("n_stars"), msg.get("valid"))
     if (type(t) is float and type(q) is list and len(q) == 4 and type(n_stars) is int
-            and type(valid) is bool and n_stars >= 0 and math.isfinite(t)):
+            and type(valid) is bool and 0 <= n_stars <= MAX_N_STARS and math.isfinite(t)):
         q0, q1, q2, q3 = q
         if type(q0) is float and type(q1) is float and type(q2) is float and type(q3) is float:
             nn = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
@@ -152,6 +153,8 @@ def _decode_tracker_checked(msg: dict):
     n_stars = _field(msg, "n_stars")
     if isinstance(n_stars, bool) or not isinstance(n_stars, int) or n_stars < 0:
         raise InputError("bad_type", f"n_stars must be a non-negative integer, got {n_stars!r}")
+    if n_stars > MAX_N_STARS:
+        raise InputError("bad_value", f"n_stars = {n_stars} exceeds {MAX_N_STARS}")
     valid = _field(msg, "valid")
     if not isinstance(valid, bool):
         raise InputError("bad_type", f"valid must be true/false, got {valid!r}")

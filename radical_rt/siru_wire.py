@@ -34,6 +34,12 @@ from .packets import MAX_SIRU_BATCH
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
 # siru_intake statuses
 WIRE_OK, WIRE_FALLBACK, WIRE_GROW, WIRE_DUPLICATE, WIRE_BACKWARDS = 0, 1, 2, 3, 4
+WIRE_JUMP = 5  # outside the stream's plausibility window (docs/node.md, "Time sanity")
+# the stream's plausibility window W [s] in the shared stream times (ss[SS_WINDOW]; inf: off):
+# a message whose newest t_bus is more than W + k·SPAN_PER_SAMPLE_S after the newest t_bus of
+# the stream, or whose oldest is more than W before it, is a jump candidate, not taken in
+SS_WINDOW = 6
+SPAN_PER_SAMPLE_S = 0.02  # allowance per sample of a siru batch (two nominal 10-ms periods)
 # k_needed < 0 below FALLBACK: −(2 + k) asks for column buffers of k rows
 
 
@@ -209,6 +215,20 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
 
 
 @kernel
+def outside_window(ss, i_tmax, t_first, t_last, allowance):
+    """Whether a message spanning t_first..t_last [s] lies outside the stream's plausibility
+    window: t_last more than W + allowance after the stream's newest time ss[i_tmax], or t_first
+    more than W before it (W = ss[SS_WINDOW] if ss has that slot, else no window; no newest time
+    yet: inside)."""
+    if ss.shape[0] <= SS_WINDOW:
+        return False
+    w, tmax = ss[SS_WINDOW], ss[i_tmax]
+    if not np.isfinite(tmax) or not w < np.inf:
+        return False
+    return t_last - tmax > w + allowance or tmax - t_first > w
+
+
+@kernel
 def siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, I, F, chunk, OF, OI, end, q_t,
                 q_dt, q_dth, q_st, q_br, q_ve, tags):
     """Decoded siru columns (t_bus (k,) [s], tt, dtheta (k, n) [rad], status) into the stream:
@@ -217,8 +237,11 @@ def siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, I, F, chunk, OF, 
     clock (state I, F) and the append of the released samples to the gyro queue arrays q_* from
     row end (:func:`radical_rt.clock_kernels.clock_push_rows`; the caller has made room for
     k·(max_bridge + 1) rows). Returns (WIRE_*, rows appended); WIRE_DUPLICATE / WIRE_BACKWARDS:
-    refused by the time check, nothing changed."""
+    refused by the time check, nothing changed; WIRE_JUMP: outside the plausibility window
+    (:func:`outside_window`), nothing changed."""
     k = t_bus.shape[0]
+    if outside_window(ss, i_tmax, t_bus[0], t_bus[k - 1], k * SPAN_PER_SAMPLE_S):
+        return WIRE_JUMP, 0
     last = ss[i_last]
     if t_bus[0] == last:
         return WIRE_DUPLICATE, 0
@@ -237,7 +260,7 @@ def siru_intake(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap, ss, i_la
     """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, then
     :func:`siru_accept`. Returns (WIRE_*, k, rows appended): WIRE_FALLBACK — not the plain
     layout (nothing changed); WIRE_GROW — the column buffers need k rows; WIRE_DUPLICATE /
-    WIRE_BACKWARDS — refused by the time check (nothing changed)."""
+    WIRE_BACKWARDS / WIRE_JUMP — refused by the time check (nothing changed)."""
     k = parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap)
     if k == FALLBACK:
         return WIRE_FALLBACK, 0, 0
