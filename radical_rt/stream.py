@@ -209,8 +209,8 @@ class StreamProcessor(StreamGuards):
         t_in = float(tq.ss[SS_T_IN])
         if code == IN_JUMP:
             raise TimeJump(topic, t_in, t_in, float(tq.ss[SS_T_MAX]))
-        if self._conflict.close(j, t_in, prev):
-            self._conflict_evidence(j, t_in)
+        if self._conflict.close(j, t_in, prev) or code >= 0:
+            self._tracker_evidence(j, code, t_in, prev, tq.q_work if decoded is None else decoded[1])
         if code == IN_DUPLICATE or code == IN_BACKWARDS:
             t, last = float(tq.ss[SS_T_IN]), float(tq.ss[SS_LAST + j])
             if code == IN_DUPLICATE:
@@ -252,6 +252,7 @@ class StreamProcessor(StreamGuards):
 
     def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
         """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
+        self._discard_candidates()  # held jump candidates never confirmed: rejected
         out = self.clock.flush()
         if len(out.t):
             self._gq.push(out)
@@ -340,21 +341,23 @@ class StreamProcessor(StreamGuards):
 
     def _on_window(self, t: float) -> None:
         self._packet_wake = None  # the packets' due() below moves their schedule
-        flags = self.flags
-        if flags != self._last_flags:
-            prev = self._last_flags or 0
-            self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
-                                        "set": flag_names(flags & ~prev),
-                                        "cleared": flag_names(prev & ~flags),
-                                        "detail": self._fault_detail()}))
-            self._last_flags = flags
-            self._guard_published(flags, t)
+        if self.flags != self._last_flags:
+            self._emit_fault(t)
         memo: dict[str, Any] = {}  # the packets and the diag of this close read one state
         for spec in self.packets.values():
             if spec.trigger == "window" and spec.due(t):
                 self._out.append((f"tlm/{spec.name}", build(spec, self, memo=memo)))
         if self.diag.due(t):
             self._out.append(("diag", self.diag_message(memo)))
+
+    def _emit_fault(self, t: float) -> None:
+        flags, prev = self.flags, self._last_flags or 0
+        self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
+                                    "set": flag_names(flags & ~prev),
+                                    "cleared": flag_names(prev & ~flags),
+                                    "detail": self._fault_detail()}))
+        self._last_flags = flags
+        self._guard_published(flags, t)
 
     def _sample_outputs(self) -> None:
         """Sample-triggered packets due at the newest sample time, with the predicted attitude

@@ -20,11 +20,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from .flags import Flag
 from .input_guard import HeldFlag, JumpGuard, TimeJump, TrackerConflict
 from .packets import InputError, decode_tracker, unpack
 from .siru_wire import SS_WINDOW
-from .tracker_queue import SI_END, SI_HEAD, SS_LAST
+from .tracker_queue import IN_DUPLICATE, SI_END, SI_HEAD, SS_LAST
 
 _GYRO_GAP, _INPUT_GAP = int(Flag.GYRO_GAP), int(Flag.INPUT_GAP)
 _CONFLICT = {1: int(Flag.ST1_CONFLICT), 2: int(Flag.ST2_CONFLICT)}
@@ -58,7 +60,19 @@ class StreamGuards:
         self.max_tracker_rows = max_tracker_rows
         self._gyro_gap, self._input_gap = HeldFlag(gap_hold_s), HeldFlag(gap_hold_s)
         self._gyro_gaps_seen = 0
+        self._last_q = {1: np.zeros(4), 2: np.zeros(4)}  # last quaternion taken in per tracker
         self.input_gaps, self.input_gap_total_s, self.reported_lost = 0, 0.0, 0
+
+    @property
+    def time_window_s(self) -> float:
+        """The plausibility window W [s] (inf: no time sanity check; set it to change it)."""
+        return float(self._tq.ss[SS_WINDOW])
+
+    @time_window_s.setter
+    def time_window_s(self, w: float) -> None:
+        if not w > 0:
+            raise ValueError(f"the time window must be > 0 s, got {w!r}")
+        self._tq.ss[SS_WINDOW] = self._jumps.window_s = w
 
     def _guard_begin_stream(self) -> None:
         self._jumps.held = []
@@ -95,6 +109,19 @@ class StreamGuards:
             self._reject(d.topic, d)
 
     # ------------------------------------------------------------------ tracker conflicts
+    def _tracker_evidence(self, j: int, code: int, t: float, prev: float, q) -> None:
+        """After a tracker intake (code: IN_*; t, prev: its t_bus and the tracker's previous one
+        [s]; q its quaternion): a sample taken in is remembered; two samples closer than the
+        minimum interval are evidence of a second source, unless one exactly repeats the other
+        (same t_bus and quaternion: a re-sent message, refused as a duplicate)."""
+        if code >= 0:  # taken in (or dropped as late)
+            self._last_q[j][:] = q
+            if not self._conflict.close(j, t, prev):
+                return
+        elif code == IN_DUPLICATE and np.array_equal(q, self._last_q[j]):
+            return
+        self._conflict_evidence(j, t)
+
     def _conflict_evidence(self, j: int, t: float) -> None:
         c = self._conflict
         c.last_seen[j] = max(c.last_seen[j], t)
@@ -131,6 +158,13 @@ class StreamGuards:
         if n > 0:
             self.reported_lost += n
             self._input_gap.set()
+
+    def fault_now(self) -> list[tuple[str, dict[str, Any]]]:
+        """The fault message due now if the flags changed since the last one (e.g. a loss noted
+        at the end of a stream, when no window closes any more)."""
+        if self.flags != self._last_flags:
+            self._emit_fault(self.engine.t)
+        return self.take_outputs()
 
     def _guard_flags(self) -> int:
         e, f = self.engine, 0

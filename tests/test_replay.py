@@ -15,6 +15,7 @@ import warnings
 from collections import defaultdict
 from pathlib import Path
 
+import msgpack
 import pytest
 
 from radical_rt import zconfig
@@ -126,15 +127,17 @@ class _FakePub:
 
 
 class FakeSession:
-    """Enough of zenoh.Session for replay(): publishers that log (monotonic, key, payload)."""
+    """Enough of zenoh.Session for replay(): publishers that log (monotonic, key, payload); the
+    end-of-stream markers (``.../eos``) go to their own log."""
 
     def __init__(self) -> None:
         self.log: list[tuple[float, str, bytes]] = []
+        self.eos_log: list[tuple[float, str, bytes]] = []
         self.declared: list[tuple[str, dict]] = []
 
     def declare_publisher(self, key: str, **kw) -> _FakePub:
         self.declared.append((key, kw))
-        return _FakePub(self.log, key)
+        return _FakePub(self.eos_log if key.endswith("/eos") else self.log, key)
 
 
 def _order(path: Path, start_ns=None, end_ns=None) -> list[tuple[str, int, bytes]]:
@@ -154,6 +157,12 @@ def test_fake_bus_order_payloads_keys_and_block(archives):
     for _key, kw in s.declared:  # BLOCK always: replay data must not be dropped
         assert kw["congestion_control"] == zenoh.CongestionControl.BLOCK
     assert abs(res["archive_s"] - 59.99) < 0.02
+    # one end-of-stream marker, after the last message, with the counts sent
+    (t_eos, key, data), = s.eos_log
+    eos = msgpack.unpackb(data)
+    assert key == f"radical/{VEH}/eos" and t_eos >= s.log[-1][0] and eos["next"] == "none"
+    assert eos["counts"] == {t.lstrip("/"): n for t, n in res["counts"].items()}
+    assert res["eos_sent"] == 1 and res["not_delivered"] == 0
 
 
 def test_fake_bus_paced_sequence_and_window(archives):
@@ -342,6 +351,8 @@ def test_fast_blocks_on_slow_subscriber_no_loss(archives):
     done = threading.Event()
 
     def slow(sample) -> None:
+        if str(sample.key_expr).endswith("/eos"):
+            return  # the end-of-stream marker (test_fake_bus_order_payloads_keys_and_block)
         got.append(sample.payload.to_bytes())
         time.sleep(0.0005)
         if len(got) == len(want):
@@ -502,10 +513,15 @@ def test_several_files_in_sequence(archives, tmp_path):
     with session(listen=e) as rs, session(connect=e) as ps:
         rs.declare_subscriber(f"radical/{VEH}/*",
                               lambda s: order.append((str(s.key_expr), s.payload.to_bytes())))
+        # (the end-of-stream markers, one after each archive, are checked below)
         rec = Recorder(out, rs)
         res = replay([archives["a"], archives["b"]], VEH, ps, rate=None, wait_subscribers=10)
         rec.finish(res["messages"])
     want = _order(archives["a"]) + _order(archives["b"])
+    eos = [i for i, (k, _d) in enumerate(order) if k.endswith("/eos")]
+    assert eos == [len(_order(archives["a"])), len(order) - 1]  # behind each archive
+    assert [msgpack.unpackb(order[i][1])["next"] for i in eos] == ["warm", "none"]
+    order = [o for i, o in enumerate(order) if i not in eos]
     assert order == [(f"radical/{VEH}/{t.lstrip('/')}", d) for t, _, d in want]
     got = recorded(out)
     wa, wb = inputs_of(archives["a"]), inputs_of(archives["b"])
