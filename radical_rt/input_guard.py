@@ -7,13 +7,16 @@ the same decisions on the same message sequence.
 :class:`JumpGuard` — a message whose t_bus lies outside the plausibility window W around the
 stream's newest time (the compiled intakes test it: :func:`radical_rt.siru_wire.outside_window`)
 is never adopted. It is held as a jump candidate. Held candidates are consistent when each lies
-within W of the span of those held before it. ``confirm_n`` consecutive consistent candidates of
-which at least ``confirm_siru`` are ``siru`` batches are a genuine jump: ahead of the stream, a
+within W of the span of those held before it and after the held candidates of its own topic (a
+new time line goes forward on every topic: replays of old messages and copies of one forged
+time do not make one). ``confirm_n`` consecutive consistent candidates among which the last
+``confirm_siru`` siru batches continue each other's time tags (the first tag of each one sample,
+5000..15000 ticks, after the last tag of the one before) are a genuine jump: ahead of the stream, a
 gap (the candidates are then taken in, in order, as if the window had not been there); behind
 it, a bus-time reset (the stream ends as between two archives, warm start, and the candidates
 open the new stream). Any message taken in normally, or an inconsistent candidate, discards the
-held candidates: they are counted as rejected (``time_jump``). At most ``confirm_n`` candidates
-and ``max_bytes`` of payload are held.
+held candidates: they are counted as rejected (``time_jump``). At most ``4 · confirm_n``
+candidates and ``max_bytes`` of payload are held (the oldest are dropped, counted).
 
 :class:`TrackerConflict` — two samples of one tracker closer than ``min_interval_s`` in t_bus
 (one was taken in and the other is refused as going back, or both are taken in) cannot come from
@@ -29,28 +32,35 @@ import math
 from collections import deque
 from typing import Any
 
+TT_WRAP = 1 << 32  # the siru time tag counter wraps (CONTRACT §1.5)
+TT_STEP_MIN, TT_STEP_MAX = 5000, 15000  # one sample (10000 ticks of 1 µs) ± 50 %
+
 
 class TimeJump(ValueError):
     """A message outside the plausibility window (t_first..t_last: its t_bus span [s])."""
 
     reason = "time_jump"
 
-    def __init__(self, topic: str, t_first: float, t_last: float, t_ref: float) -> None:
+    def __init__(self, topic: str, t_first: float, t_last: float, t_ref: float,
+                 tt: tuple[int, int] | None = None) -> None:
         super().__init__(f"{topic} t_bus={t_first:.6f}..{t_last:.6f} is outside the "
                          f"plausibility window around the stream's newest time {t_ref:.6f}")
         self.topic, self.t_first, self.t_last = topic, t_first, t_last
+        self.tt = tt  # a siru batch's first and last time tags
 
 
 class JumpGuard:
     """Held jump candidates (module docstring)."""
 
-    def __init__(self, window_s: float = 2.0, confirm_n: int = 5, confirm_siru: int = 2,
+    def __init__(self, window_s: float = 2.0, confirm_n: int = 5, confirm_siru: int = 3,
                  max_bytes: int = 8 << 20) -> None:
         if not (window_s > 0 and confirm_n >= 1 and 0 <= confirm_siru <= confirm_n):
             raise ValueError("time window must be > 0 and 0 ≤ confirm_siru ≤ confirm_n ≥ 1")
         self.window_s, self.confirm_n, self.confirm_siru = window_s, confirm_n, confirm_siru
         self.max_bytes = max_bytes
         self.held: list[tuple[str, Any, float, float, int]] = []
+        self._tt_last: int | None = None  # last time tag of the held siru candidates
+        self._siru_run = 0  # held siru candidates that continue each other's time tags
         self.gaps = self.resets = 0  # confirmed jumps
 
     def _span(self) -> tuple[float, float]:
@@ -65,14 +75,21 @@ class JumpGuard:
         discarded: list[TimeJump] = []
         if self.held:
             lo, hi = self._span()
-            if not (exc.t_first >= lo - w and exc.t_last <= hi + w + (exc.t_last - exc.t_first)):
+            prev = max((h[3] for h in self.held if h[0] == topic), default=-math.inf)
+            if not (exc.t_first >= lo - w and exc.t_last <= hi + w + (exc.t_last - exc.t_first)
+                    and exc.t_first > prev):
                 discarded = self.discard()
         nbytes = len(payload) if isinstance(payload, (bytes, bytearray, memoryview)) else 0
+        if topic == "siru" and exc.tt is not None:
+            step = (exc.tt[0] - self._tt_last) % TT_WRAP if self._tt_last is not None else None
+            contiguous = step is not None and TT_STEP_MIN <= step <= TT_STEP_MAX
+            self._siru_run = self._siru_run + 1 if contiguous else 1
+            self._tt_last = exc.tt[1]
         self.held.append((topic, payload, exc.t_first, exc.t_last, nbytes))
-        while len(self.held) > 1 and sum(h[4] for h in self.held) > self.max_bytes:
+        while len(self.held) > 1 and (len(self.held) > 4 * self.confirm_n
+                                      or sum(h[4] for h in self.held) > self.max_bytes):
             discarded.append(self._exc(self.held.pop(0)))
-        n_siru = sum(1 for h in self.held if h[0] == "siru")
-        if len(self.held) < self.confirm_n or n_siru < self.confirm_siru:
+        if len(self.held) < self.confirm_n or self._siru_run < self.confirm_siru:
             return "held", [], discarded
         lo, _hi = self._span()
         action = "gap" if not lo < t_ref else "reset"
@@ -81,8 +98,11 @@ class JumpGuard:
         else:
             self.resets += 1
         msgs = [(h[0], h[1]) for h in self.held]
-        self.held = []
+        self._clear()
         return action, msgs, discarded
+
+    def _clear(self) -> None:
+        self.held, self._tt_last, self._siru_run = [], None, 0
 
     @staticmethod
     def _exc(h: tuple[str, Any, float, float, int]) -> TimeJump:
@@ -91,7 +111,7 @@ class JumpGuard:
     def discard(self) -> list[TimeJump]:
         """Drop every held candidate; return them (to be counted as rejected)."""
         out = [self._exc(h) for h in self.held]
-        self.held = []
+        self._clear()
         return out
 
 

@@ -47,8 +47,8 @@ from . import checkpoint as ckpt
 from . import commands
 from .batch import make_processor, make_summary
 from .eos import EOS_TOPIC, decode_eos
-from .packets import InputError
 from .node_timing import LoopTiming
+from .packets import InputError
 from .params import ParamTable
 from .stream import INPUT_TOPICS, StreamProcessor
 from .transport import Inbox, Transport, ZenohTransport

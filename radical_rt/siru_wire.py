@@ -12,7 +12,7 @@ preallocated column buffers, in one kernel call, without building the Python map
   to float64 as numpy does); ``tt`` and ``status`` integers within int64;
 * columns of one length k in 1..:data:`radical_rt.packets.MAX_SIRU_BATCH`, that also pass the
   column checks of ``decode_siru`` (finite values, tt in [0, 2³²), status ≥ 0, t_bus not
-  decreasing); no bytes after the map.
+  decreasing, |dtheta| ≤ MAX_DTHETA_RAD); no bytes after the map.
 
 Anything else — another key, a bool, nil, a duplicate key, a truncated or malformed buffer, a value
 that decode_siru would reject — returns :data:`FALLBACK`, and the caller takes the general path
@@ -29,7 +29,7 @@ import numpy as np
 from ._jit import kernel
 from .clock_kernels import clock_push_rows
 from .conventions import SIRU_TT_WRAP
-from .packets import MAX_SIRU_BATCH
+from .packets import MAX_DTHETA_RAD, MAX_SIRU_BATCH
 
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
 # siru_intake statuses
@@ -209,7 +209,7 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
         if i > 0 and t_bus[i] < t_bus[i - 1]:
             return -1
         for j in range(n_gyro):
-            if not np.isfinite(dtheta[i, j]):
+            if not np.isfinite(dtheta[i, j]) or abs(dtheta[i, j]) > MAX_DTHETA_RAD:
                 return -1
     return k
 

@@ -25,8 +25,8 @@ from .clock import ClockConfig, SiruClock
 from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
-from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .input_guard import TimeJump
+from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .siru_wire import SS_WINDOW, WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, WIRE_JUMP, SiruWire
 from .stream_guard import StreamGuards
 from .telemetry import PacketSpec, build, default_packets, read_field
@@ -161,13 +161,16 @@ class StreamProcessor(StreamGuards):
                                              SS_T_MAX)
             t0 = float(self._wire.t_bus[0])
             if status == WIRE_JUMP:
-                raise TimeJump("siru", t0, float(self._wire.t_bus[k - 1]), float(ss[SS_T_MAX]))
+                w = self._wire
+                raise TimeJump("siru", t0, float(w.t_bus[k - 1]), float(ss[SS_T_MAX]),
+                               (int(w.tt[0]), int(w.tt[k - 1])))
         if status == WIRE_FALLBACK:
             t_bus, tt, dth, st = decode_siru(unpack(payload), self.engine.n_gyro)
             t0 = float(t_bus[0])
             status, m = self.clock.accept(t_bus, tt, dth, st, gq, ss, SS_LAST_SIRU, SS_T_MAX)
             if status == WIRE_JUMP:
-                raise TimeJump("siru", t0, float(t_bus[-1]), float(ss[SS_T_MAX]))
+                raise TimeJump("siru", t0, float(t_bus[-1]), float(ss[SS_T_MAX]),
+                               (int(tt[0]), int(tt[-1])))
         if status == WIRE_DUPLICATE:
             raise InputError("duplicate", f"siru sample at t_bus={t0} repeats the previous one")
         if status == WIRE_BACKWARDS:

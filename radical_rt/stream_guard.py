@@ -24,7 +24,7 @@ import numpy as np
 
 from .flags import Flag
 from .input_guard import HeldFlag, JumpGuard, TimeJump, TrackerConflict
-from .packets import InputError, decode_tracker, unpack
+from .packets import decode_tracker, unpack
 from .siru_wire import SS_WINDOW
 from .tracker_queue import IN_DUPLICATE, SI_END, SI_HEAD, SS_LAST
 
@@ -38,7 +38,7 @@ class StreamGuards:
     ``end_stream``, ``_out`` and ``t_max``."""
 
     def _init_guards(self, time_window_s: float = 2.0, jump_confirm_n: int = 5,
-                     jump_confirm_siru: int = 2, tracker_min_interval_s: float = 0.005,
+                     jump_confirm_siru: int = 3, tracker_min_interval_s: float = 0.005,
                      conflict_n: int = 2, conflict_hold_s: float = 10.0,
                      input_gap_s: float = 0.05, gap_hold_s: float = 1.0,
                      max_payload_bytes: int = MAX_PAYLOAD_BYTES,
@@ -52,7 +52,7 @@ class StreamGuards:
         if not (max_payload_bytes >= 1 and max_tracker_rows >= 1 and input_gap_s > 0):
             raise ValueError("max_payload_bytes, max_tracker_rows ≥ 1 and input_gap_s > 0")
         self._jumps = JumpGuard(time_window_s, jump_confirm_n, jump_confirm_siru,
-                                max_bytes=jump_confirm_n * max_payload_bytes)
+                                max_bytes=4 * jump_confirm_n * max_payload_bytes)
         self._conflict = TrackerConflict(tracker_min_interval_s, conflict_n, span_s=conflict_hold_s,
                                          hold_s=conflict_hold_s)
         self._tq.ss[SS_WINDOW] = time_window_s

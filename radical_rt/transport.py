@@ -491,9 +491,25 @@ class ZenohTransport:
     def liveliness_token(self, key: str) -> _ZHandle:
         return self._keep(self.session.liveliness().declare_token(key))
 
+    MATCH_WAIT_S = 2.0  # longest wait for a matching queryable before a get
+
     def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+        """Query ``key``. A session that has just connected may not know the routes to the
+        queryables yet (a get then returns no reply at once: issue 23, a client right after the
+        node's "ready" line): first wait, up to min(timeout, MATCH_WAIT_S), until a querier on
+        the key has a matching queryable."""
+        querier = self.session.declare_querier(key, timeout=timeout)
+        try:
+            end = time.monotonic() + min(timeout, self.MATCH_WAIT_S)
+            while not querier.matching_status.matching and time.monotonic() < end:
+                time.sleep(0.005)
+            return self._replies(key, querier.get(payload=payload))
+        finally:
+            querier.undeclare()
+
+    def _replies(self, key: str, replies: Any) -> list[bytes]:
         out = []
-        for r in self.session.get(key, payload=payload, timeout=timeout):
+        for r in replies:
             if r.ok is not None:
                 out.append(r.ok.payload.to_bytes())
             else:

@@ -4,8 +4,6 @@ times and gyro gaps are counted and published as flags. Each test failed before 
 
 from __future__ import annotations
 
-import time
-
 import msgpack
 import numpy as np
 import pytest
