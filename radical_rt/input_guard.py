@@ -130,7 +130,7 @@ class TrackerConflict:
 
     def active(self, j: int, t_now: float) -> bool:
         """Whether tracker j is in conflict at bus time t_now [s]."""
-        return t_now <= self.until[j]
+        return self.until[j] > -math.inf and t_now <= self.until[j]
 
     def close(self, j: int, t: float, prev: float) -> bool:
         """Whether t and the tracker's previous t_bus prev are too close for one source."""
@@ -170,7 +170,7 @@ class HeldFlag:
         self.pending = True
 
     def on(self, t: float) -> bool:
-        return self.pending or t <= self.until
+        return self.pending or (self.until > -math.inf and t <= self.until)
 
     def published(self, t: float) -> None:
         """A fault message at bus time t [s] carried the flag."""
