@@ -22,7 +22,7 @@ from radical_rt import zconfig
 from radical_rt.cli import main as cli_main
 from replayer.archive import INPUT_TOPICS, ArchiveReader, ArchiveWriter, TruncatedArchiveWarning
 from replayer.record import record
-from replayer.replay import ReplayError, check_inputs, replay, wait_for_node
+from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
 from replayer.synth.api import synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -636,3 +636,48 @@ def test_progress_bar_on_stderr(archives, capfd):
     err = capfd.readouterr().err
     assert "archive" in err and "t_bus" in err and "x]" in err  # archive time and achieved rate
 
+
+
+# ------------------------------------------------------------------ losses reported (issue 23)
+def test_fake_bus_not_delivered_without_subscriber(archives):
+    """Messages put while no subscriber matches are reported as not delivered (before: the
+    replay reported success)."""
+    s = FakeSession()
+    orig = s.declare_publisher
+
+    def unmatched(key, **kw):
+        p = orig(key, **kw)
+        p.matching_status = type("M", (), {"matching": False})()
+        return p
+    s.declare_publisher = unmatched
+    res = replay([archives["a"]], VEH, s, rate=None, end=5.0)
+    assert res["not_delivered"] == res["messages"] > 0
+    assert sum(res["unmatched"].values()) == res["messages"]
+    assert "NOT DELIVERED" in _summary_line(res)
+
+
+@pytest.mark.zenoh
+def test_record_reports_what_the_marker_says_was_lost(archives, tmp_path):
+    """The recorder compares an end-of-stream marker's counts with what it recorded: here 5
+    siru messages never published (before: only its own queue drops were reported)."""
+    e, out = ep(), tmp_path / "lost.mcap"
+    msgs = _order(archives["a"])
+    skip = {i for i, m in enumerate(msgs) if m[0] == "/siru"}
+    skip = set(sorted(skip)[10:15])
+    sent: dict[str, int] = {}
+    with session(listen=e) as rs, session(connect=e) as ps:
+        rec = Recorder(out, rs)
+        pubs = {t: ps.declare_publisher(f"radical/{VEH}/{t.lstrip('/')}") for t in INPUT_TOPICS}
+        eos_pub = ps.declare_publisher(f"radical/{VEH}/eos")
+        deadline = time.monotonic() + 10
+        while not all(p.matching_status.matching for p in pubs.values()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for i, (t, _ns, data) in enumerate(msgs):
+            sent[t.lstrip("/")] = sent.get(t.lstrip("/"), 0) + 1
+            if i not in skip:
+                pubs[t].put(data)
+        eos_pub.put(msgpack.packb({"v": 1, "next": "none", "counts": sent}))
+        res = rec.finish(len(msgs) - len(skip) + 1)
+    assert res["eos"] == 1 and res["lost"] == 5
+    assert res["messages"] == len(msgs) - 5  # the marker itself is not written
