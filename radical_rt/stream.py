@@ -212,8 +212,13 @@ class StreamProcessor(StreamGuards):
         t_in = float(tq.ss[SS_T_IN])
         if code == IN_JUMP:
             raise TimeJump(topic, t_in, t_in, float(tq.ss[SS_T_MAX]))
-        if self._conflict.close(j, t_in, prev) or code >= 0:
-            self._tracker_evidence(j, code, t_in, prev, tq.q_work if decoded is None else decoded[1])
+        q_in = tq.q_work if decoded is None else decoded[1]
+        if code >= 0:  # taken in: remembered; closer than one tracker can: evidence (stream_guard)
+            self._last_q[j] = q_in.tobytes()
+            if abs(t_in - prev) < self._min_interval_s:
+                self._conflict_evidence(j, t_in)
+        elif abs(t_in - prev) < self._min_interval_s:
+            self._tracker_evidence(j, code, t_in, q_in)
         if code == IN_DUPLICATE or code == IN_BACKWARDS:
             t, last = float(tq.ss[SS_T_IN]), float(tq.ss[SS_LAST + j])
             if code == IN_DUPLICATE:

@@ -20,8 +20,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
 from .flags import Flag
 from .input_guard import HeldFlag, JumpGuard, TimeJump, TrackerConflict
 from .packets import decode_tracker, unpack
@@ -60,7 +58,9 @@ class StreamGuards:
         self.max_tracker_rows = max_tracker_rows
         self._gyro_gap, self._input_gap = HeldFlag(gap_hold_s), HeldFlag(gap_hold_s)
         self._gyro_gaps_seen = 0
-        self._last_q = {1: np.zeros(4), 2: np.zeros(4)}  # last quaternion taken in per tracker
+        self._last_q = {1: b"", 2: b""}  # bytes of the last quaternion taken in per tracker
+        self._min_interval_s = tracker_min_interval_s
+        self._guard_live = False  # a held flag or a conflict may be on (else no flag to add)
         self.input_gaps, self.input_gap_total_s, self.reported_lost = 0, 0.0, 0
 
     @property
@@ -109,20 +109,17 @@ class StreamGuards:
             self._reject(d.topic, d)
 
     # ------------------------------------------------------------------ tracker conflicts
-    def _tracker_evidence(self, j: int, code: int, t: float, prev: float, q) -> None:
-        """After a tracker intake (code: IN_*; t, prev: its t_bus and the tracker's previous one
-        [s]; q its quaternion): a sample taken in is remembered; two samples closer than the
-        minimum interval are evidence of a second source, unless one exactly repeats the other
-        (same t_bus and quaternion: a re-sent message, refused as a duplicate)."""
-        if code >= 0:  # taken in (or dropped as late)
-            self._last_q[j][:] = q
-            if not self._conflict.close(j, t, prev):
-                return
-        elif code == IN_DUPLICATE and np.array_equal(q, self._last_q[j]):
+    def _tracker_evidence(self, j: int, code: int, t: float, q) -> None:
+        """A tracker sample refused (code: IN_*) closer than the minimum interval to the
+        tracker's previous one (t: its t_bus [s], q: its quaternion): evidence of a second source,
+        unless it exactly repeats the previous one (same t_bus and quaternion: a re-sent message,
+        refused as a duplicate). (A sample taken in is handled inline by the stream.)"""
+        if code == IN_DUPLICATE and q.tobytes() == self._last_q[j]:
             return
         self._conflict_evidence(j, t)
 
     def _conflict_evidence(self, j: int, t: float) -> None:
+        self._guard_live = True
         c = self._conflict
         c.last_seen[j] = max(c.last_seen[j], t)
         if c.note(j, t):  # raised now: the samples of tracker j still waiting are not used
@@ -152,12 +149,14 @@ class StreamGuards:
         self.input_gaps += 1
         self.input_gap_total_s += dt
         self._input_gap.set()
+        self._guard_live = True
 
     def note_reported_loss(self, n: int) -> None:
         """Messages a publisher reported sent that never arrived (end-of-stream marker)."""
         if n > 0:
             self.reported_lost += n
             self._input_gap.set()
+            self._guard_live = True
 
     def fault_now(self) -> list[tuple[str, dict[str, Any]]]:
         """The fault message due now if the flags changed since the last one (e.g. a loss noted
@@ -172,6 +171,9 @@ class StreamGuards:
         if g != self._gyro_gaps_seen:
             self._gyro_gaps_seen = g
             self._gyro_gap.set()
+            self._guard_live = True
+        if not self._guard_live:  # the common case: nothing held, no conflict
+            return 0
         t = e.t
         if self._gyro_gap.on(t):
             f |= _GYRO_GAP
@@ -181,6 +183,9 @@ class StreamGuards:
         for j in (1, 2):
             if c.until[j] > -math.inf and c.active(j, max(self.t_max, c.last_seen[j])):
                 f |= _CONFLICT[j]
+        if not f and not any(h.pending or h.until >= t for h in (self._gyro_gap, self._input_gap)) \
+                and c.until[1] == -math.inf and c.until[2] == -math.inf:
+            self._guard_live = False
         return f
 
     def _guard_published(self, flags: int, t: float) -> None:
