@@ -176,7 +176,7 @@ class StreamProcessor(StreamGuards):
         if status == WIRE_BACKWARDS:
             raise InputError("time_backwards",
                              f"siru t_bus={t0} is before the previous {float(ss[SS_LAST_SIRU])}")
-        if t0 - prev > self.input_gap_s and prev > -math.inf:  # a gap in the siru bus times (lost batches)
+        if t0 - prev > self.input_gap_s and prev > -math.inf:  # a gap in the siru bus times
             self._note_input_gap(t0 - prev)
         if m:
             self.t_now = float(gq.t[gq.end - 1])

@@ -114,7 +114,7 @@ def test_forward_jump_is_a_gap(msgs, ref):
     half = len(msgs) // 2
     sp, outs = run(msgs, lambda i, t, d: [(t, shifted(d, 1000.0) if i >= half else d)])
     c = sp.counters()
-    assert c["time_jumps_confirmed"] == 1 and c["input_rejected"] == 0
+    assert c["time_jumps_confirmed"] == 1 and c["input_rejected"] == 0 and c["input_gaps"] == 1
     assert abs(sp.engine.t - (ref[1] + 1000.0)) < 1.0
     assert any("INPUT_GAP" in m["set"] for k, m in outs if k == "fault")
 
