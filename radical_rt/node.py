@@ -46,11 +46,13 @@ import numpy as np
 from . import checkpoint as ckpt
 from . import commands
 from .batch import make_processor, make_summary
+from .eos import EOS_TOPIC, decode_eos
 from .node_clock import ClockNotice
 from .node_timing import LoopTiming
+from .packets import InputError
 from .params import ParamTable
 from .stream import INPUT_TOPICS, StreamProcessor
-from .transport import Inbox, Transport
+from .transport import Inbox, Transport, ZenohTransport
 
 log = logging.getLogger("radical.node")
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
@@ -84,6 +86,12 @@ class Vehicle:
         self.commands_applied = 0
         self.published: dict[str, int] = defaultdict(int)
         self.clock_notice = ClockNotice(name)
+        # end of stream (docs/node.md, "End of stream"): received at the last marker, markers,
+        # inputs a marker reported sent but never received, releases after an idle time
+        self.at_eos: dict[str, int] = {}
+        self.eos_seen = self.reported_lost = self.idle_releases = 0
+        self.last_input_mono = 0.0
+        self.holding = False  # inputs taken since the last release of everything
 
     # ---- called by commands.apply (filter loop thread)
     def status(self) -> dict[str, Any]:
@@ -112,6 +120,8 @@ class Vehicle:
         return {"received": received, "fed": dict(self.fed), "queue_overflow": overflow,
                 "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
                 "commands_applied": self.commands_applied, "published": dict(self.published),
+                "eos": self.eos_seen, "reported_lost": self.reported_lost,
+                "idle_releases": self.idle_releases,
                 "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
                 "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
@@ -169,7 +179,12 @@ class FilterNode:
     real-time policy SCHED_FIFO at this priority (1–99; needs root or CAP_SYS_NICE; None: the
     default time-sharing policy). The loop blocks whenever its FIFO is empty, so it only takes the
     CPU when there is input, and then ahead of the Zenoh and other threads of the machine: on
-    2 cores this raised the capacity from 47 to 51 vehicles (perf/README.md).
+    2 cores this raised the capacity from 47 to 51 vehicles (perf/README.md). idle_release_s:
+    release what a vehicle holds for reordering once no input came for that long (wall time;
+    None: only at an end-of-stream marker or end_stream command; docs/node.md, "End of stream").
+    max_payload_bytes: the largest input payload taken (None: the processors' own bound).
+    queue_bytes: the byte bound of the input FIFO where the transport can keep one (in memory;
+    a Zenoh FIFO counts samples only; None: no byte bound).
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
@@ -179,18 +194,25 @@ class FilterNode:
                  checkpoint_path: str | None = None, checkpoint_every_s: float = 60.0,
                  queue_size: int = 4096, queue_wait_s: float = 1.0, block_outputs: bool = False,
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
-                 timing: LoopTiming | None = None, rt_priority: int | None = None):
+                 timing: LoopTiming | None = None, rt_priority: int | None = None,
+                 idle_release_s: float | None = None, max_payload_bytes: int | None = None,
+                 queue_bytes: int | None = 256 << 20):
         if not processors:
             raise ValueError("at least one vehicle is needed")
         if queue_size < 1 or checkpoint_every_s <= 0:
             raise ValueError("queue_size must be ≥ 1 and checkpoint_every_s > 0")
         if rt_priority is not None and not 1 <= rt_priority <= 99:
             raise ValueError(f"rt_priority must be 1..99, got {rt_priority}")
-        self.rt_priority = rt_priority
+        if idle_release_s is not None and not idle_release_s > 0:
+            raise ValueError("idle_release_s must be > 0 (None: never)")
+        self.rt_priority, self.idle_release_s = rt_priority, idle_release_s
         self.transport = transport
         self.vehicles = {name: Vehicle(self, name, sp) for name, sp in processors.items()}
+        if max_payload_bytes is not None:  # the size bound of every vehicle's inputs
+            for sp in processors.values():
+                sp.max_payload_bytes = max_payload_bytes
         self.checkpoint_path, self.checkpoint_every_s = checkpoint_path, checkpoint_every_s
-        self.queue_size, self.queue_wait_s = queue_size, queue_wait_s
+        self.queue_size, self.queue_wait_s, self.queue_bytes = queue_size, queue_wait_s, queue_bytes
         self.block_outputs = block_outputs
         self.command_timeout_s = command_timeout_s
         self._cmdq: queue.Queue = queue.Queue(maxsize=64)
@@ -219,7 +241,10 @@ class FilterNode:
             key = next(iter(self.vehicles.values())).prefix + "*"
         else:
             key = "radical/*/*"
-        self._inbox = self.transport.inbox(key, self.queue_size, self.queue_wait_s)
+        kw: dict[str, Any] = {"capacity_bytes": self.queue_bytes}
+        if isinstance(self.transport, ZenohTransport):  # oversized samples dropped uncopied
+            kw["max_payload"] = max(v.sp.max_payload_bytes for v in self.vehicles.values())
+        self._inbox = self.transport.inbox(key, self.queue_size, self.queue_wait_s, **kw)
         self._thread = threading.Thread(target=self._loop, name="radical-filter", daemon=True)
         self._thread.start()
         if self.rt_priority is not None:
@@ -323,6 +348,7 @@ class FilterNode:
                     self._idle = True  # before the last look: a command queued after it wakes us
                     self._run_commands()
                     self._housekeeping()
+                    self._idle_release()
                     item = inbox.recv()  # waits with the GIL released; None: woken
                     self._idle = False
                     if item is None:
@@ -357,11 +383,53 @@ class FilterNode:
             return
         topic = key[len(v.prefix):]
         if topic not in INPUT_TOPICS:
+            if topic == EOS_TOPIC:
+                self._end_of_stream(v, data)
             return  # other keys of the vehicle (the FIFO also holds a local wake-up)
         with v.lock:
             v.received[topic] += 1
+        v.holding = True
+        if self.idle_release_s is not None:
+            v.last_input_mono = self._mono()
         self._feed(v, topic, data, t_recv)
         self._processed += 1
+
+    def _end_of_stream(self, v: Vehicle, data: bytes) -> None:
+        """An end-of-stream marker (:mod:`radical_rt.eos`): losses counted, everything held
+        released (as at the end of ``radical process``), the next stream prepared."""
+        try:
+            nxt, counts = decode_eos(data, INPUT_TOPICS)
+        except InputError as exc:
+            _note_reject(v.sp, EOS_TOPIC, exc.reason, str(exc))
+            return
+        with v.lock:
+            received = dict(v.received)
+        lost = sum(max(0, n - (received.get(t, 0) - v.at_eos.get(t, 0))) for t, n in counts.items())
+        v.at_eos = received
+        v.eos_seen += 1
+        if lost:
+            v.reported_lost += lost
+            v.sp.note_reported_loss(lost)
+            log.warning("%s: end of stream: %d input message(s) sent were never received",
+                        v.name, lost)
+        self._publish(v, v.sp.end_stream(None) + v.sp.fault_now())
+        if nxt != "none":
+            self._publish(v, v.sp.end_stream(nxt))
+        v.holding = False
+
+    def _idle_release(self) -> None:
+        """Release what a vehicle holds for reordering once no input came for idle_release_s
+        (wall time): the end of a stream without a marker ends as ``radical process`` ends."""
+        if self.idle_release_s is None:
+            return
+        now = self._mono()
+        for v in self.vehicles.values():
+            if v.holding and now - v.last_input_mono >= self.idle_release_s:
+                v.holding = False
+                v.idle_releases += 1
+                self._publish(v, v.sp.end_stream(None))
+                log.info("%s: no input for %.3g s: held samples released", v.name,
+                         now - v.last_input_mono)
 
     def _run_commands(self) -> None:
         if self._cmdq.empty():  # the common case: no exception raised per message
@@ -420,6 +488,10 @@ class FilterNode:
         dropped = self._inbox.take_dropped()
         if dropped:
             self._report_overflows(dropped)
+        take_oversize = getattr(self._inbox, "take_oversize", None)
+        oversize = take_oversize() if take_oversize is not None else None
+        if oversize:
+            self._report_overflows(oversize, "too_large", "payload over the size bound")
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
             self._periodic_checkpoint()
 
@@ -442,17 +514,18 @@ class FilterNode:
         self.checkpoint_error = None
         self._next_ckpt = self._mono() + self.checkpoint_every_s
 
-    def _report_overflows(self, dropped: dict[str, int]) -> None:
+    def _report_overflows(self, dropped: dict[str, int], reason: str = "queue_overflow",
+                          what: str = "queue full") -> None:
         for key, n in dropped.items():
             v = self.vehicles.get(key.split("/", 2)[1])
             topic = key[len(v.prefix):] if v is not None else ""
             if v is None or topic not in INPUT_TOPICS:
                 continue
-            with v.lock:
-                v.overflow[topic] += n
-            _note_reject(v.sp, "input", "queue_overflow",
-                         f"queue full: {n} message(s) dropped", count=n)
-            log.warning("%s: input queue full, %d message(s) dropped", v.name, n)
+            if reason == "queue_overflow":
+                with v.lock:
+                    v.overflow[topic] += n
+            _note_reject(v.sp, "input", reason, f"{what}: {n} message(s) dropped", count=n)
+            log.warning("%s: %s, %d %s message(s) dropped", v.name, what, n, topic)
 
     def queue_depth(self) -> int | None:
         """Samples waiting in the input FIFO. A Zenoh FIFO does not tell: 0 while the loop has

@@ -57,6 +57,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--queue-size", type=int, default=4096, metavar="N",
                    help="input FIFO capacity in samples (default 4096; full: back-pressure)")
+    p.add_argument("--idle-release", type=float, default=10.0, metavar="S",
+                   help="release the samples held for reordering after S s of wall time without "
+                        "input (default 10; 0: only at an end-of-stream marker)")
+    p.add_argument("--max-payload", type=int, default=1 << 20, metavar="BYTES",
+                   help="largest input payload taken (default 1 MiB; larger: refused unread)")
     p.add_argument("--block-outputs", action="store_true",
                    help="BLOCK congestion control for all outputs (default: fault only)")
     p.add_argument("--rt-priority", type=int, metavar="N",
@@ -88,6 +93,10 @@ def _check(args: argparse.Namespace) -> str | None:
         return "--duration must be > 0"
     if args.queue_size < 1:
         return "--queue-size must be ≥ 1"
+    if not args.idle_release >= 0:
+        return "--idle-release must be ≥ 0"
+    if args.max_payload < 1024:
+        return "--max-payload must be ≥ 1024"
     if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
         return "--rt-priority must be 1..99"
     for opt, given in (("--resume-bump", args.resume_bump),
@@ -153,7 +162,9 @@ def run(args: argparse.Namespace) -> int:
     node = FilterNode(transport, processors, checkpoint_path=args.checkpoint,
                       checkpoint_every_s=args.checkpoint_every, queue_size=args.queue_size,
                       block_outputs=args.block_outputs, timing=timing,
-                      rt_priority=args.rt_priority)
+                      rt_priority=args.rt_priority,
+                      idle_release_s=args.idle_release or None,
+                      max_payload_bytes=args.max_payload)
     stop = threading.Event()
     got: list[str] = []
 

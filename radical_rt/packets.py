@@ -18,6 +18,8 @@ from .conventions import SIRU_TT_WRAP
 
 QUAT_NORM_TOL = 1e-3  # |‖q‖ − 1| above this is a non-unit quaternion
 MAX_SIRU_BATCH = 10000
+MAX_DTHETA_RAD = 1.0  # |dθ| of one sample beyond this (100 rad/s at 100 Hz) is not physical
+MAX_N_STARS = 1000  # a tracker reporting more stars is wrong (and 2**63 would not fit an int64)
 
 
 class InputError(ValueError):
@@ -87,7 +89,7 @@ def decode_siru(msg: dict, n_gyro: int = 4):
     if not (tt.shape[0] == dth.shape[0] == status.shape[0] == k):
         raise InputError("bad_shape", f"siru columns differ in length: t_bus {k}, tt {tt.shape[0]}, "
                                       f"dtheta {dth.shape[0]}, status {status.shape[0]}")
-    bad = _siru_column_check(t, tt, dth, status, SIRU_TT_WRAP)
+    bad = _siru_column_check(t, tt, dth, status, SIRU_TT_WRAP, MAX_DTHETA_RAD)
     if bad:
         raise InputError(*_SIRU_BAD[bad])
     return t, tt, dth, status
@@ -95,13 +97,15 @@ def decode_siru(msg: dict, n_gyro: int = 4):
 
 _SIRU_BAD = {1: ("nonfinite", "siru t_bus or dtheta contains NaN/Inf"),
              2: ("bad_value", "siru tt outside [0, 2**32) or negative status"),
-             3: ("time_backwards", "siru t_bus decreases inside the batch")}
+             3: ("time_backwards", "siru t_bus decreases inside the batch"),
+             4: ("bad_value", f"siru |dtheta| beyond {MAX_DTHETA_RAD} rad in one sample")}
 
 
 @kernel
-def _siru_column_check(t, tt, dth, status, tt_wrap):
+def _siru_column_check(t, tt, dth, status, tt_wrap, max_dth):
     """0 if the columns of a siru batch are valid, else the first failing check: 1 a NaN/Inf in
-    t (k,) or dth (k, n); 2 tt (k,) outside [0, tt_wrap) or a negative status (k,); 3 t decreases."""
+    t (k,) or dth (k, n); 2 tt (k,) outside [0, tt_wrap) or a negative status (k,); 3 t decreases;
+    4 |dth| > max_dth [rad]."""
     for i in range(t.shape[0]):
         if not math.isfinite(t[i]):
             return 1
@@ -114,6 +118,10 @@ def _siru_column_check(t, tt, dth, status, tt_wrap):
     for i in range(1, t.shape[0]):
         if t[i] < t[i - 1]:
             return 3
+    for i in range(t.shape[0]):
+        for j in range(dth.shape[1]):
+            if abs(dth[i, j]) > max_dth:
+                return 4
     return 0
 
 
@@ -125,7 +133,7 @@ def decode_tracker(msg: dict):
     problem (:func:`_decode_tracker_checked`)."""
     t, q, n_stars, valid = (msg.get("t_bus"), msg.get("q"), msg.get("n_stars"), msg.get("valid"))
     if (type(t) is float and type(q) is list and len(q) == 4 and type(n_stars) is int
-            and type(valid) is bool and n_stars >= 0 and math.isfinite(t)):
+            and type(valid) is bool and 0 <= n_stars <= MAX_N_STARS and math.isfinite(t)):
         q0, q1, q2, q3 = q
         if type(q0) is float and type(q1) is float and type(q2) is float and type(q3) is float:
             nn = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
@@ -152,6 +160,8 @@ def _decode_tracker_checked(msg: dict):
     n_stars = _field(msg, "n_stars")
     if isinstance(n_stars, bool) or not isinstance(n_stars, int) or n_stars < 0:
         raise InputError("bad_type", f"n_stars must be a non-negative integer, got {n_stars!r}")
+    if n_stars > MAX_N_STARS:
+        raise InputError("bad_value", f"n_stars = {n_stars} exceeds {MAX_N_STARS}")
     valid = _field(msg, "valid")
     if not isinstance(valid, bool):
         raise InputError("bad_type", f"valid must be true/false, got {valid!r}")

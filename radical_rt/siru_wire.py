@@ -12,7 +12,7 @@ preallocated column buffers, in one kernel call, without building the Python map
   to float64 as numpy does); ``tt`` and ``status`` integers within int64;
 * columns of one length k in 1..:data:`radical_rt.packets.MAX_SIRU_BATCH`, that also pass the
   column checks of ``decode_siru`` (finite values, tt in [0, 2³²), status ≥ 0, t_bus not
-  decreasing); no bytes after the map.
+  decreasing, |dtheta| ≤ MAX_DTHETA_RAD); no bytes after the map.
 
 Anything else — another key, a bool, nil, a duplicate key, a truncated or malformed buffer, a value
 that decode_siru would reject — returns :data:`FALLBACK`, and the caller takes the general path
@@ -29,11 +29,17 @@ import numpy as np
 from ._jit import kernel
 from .clock_kernels import clock_push_rows
 from .conventions import SIRU_TT_WRAP
-from .packets import MAX_SIRU_BATCH
+from .packets import MAX_DTHETA_RAD, MAX_SIRU_BATCH
 
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
 # siru_intake statuses
 WIRE_OK, WIRE_FALLBACK, WIRE_GROW, WIRE_DUPLICATE, WIRE_BACKWARDS = 0, 1, 2, 3, 4
+WIRE_JUMP = 5  # outside the stream's plausibility window (docs/node.md, "Time sanity")
+# the stream's plausibility window W [s] in the shared stream times (ss[SS_WINDOW]; inf: off):
+# a message whose newest t_bus is more than W + k·SPAN_PER_SAMPLE_S after the newest t_bus of
+# the stream, or whose oldest is more than W before it, is a jump candidate, not taken in
+SS_WINDOW = 6
+SPAN_PER_SAMPLE_S = 0.02  # allowance per sample of a siru batch (two nominal 10-ms periods)
 # k_needed < 0 below FALLBACK: −(2 + k) asks for column buffers of k rows
 
 
@@ -203,9 +209,23 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
         if i > 0 and t_bus[i] < t_bus[i - 1]:
             return -1
         for j in range(n_gyro):
-            if not np.isfinite(dtheta[i, j]):
+            if not np.isfinite(dtheta[i, j]) or abs(dtheta[i, j]) > MAX_DTHETA_RAD:
                 return -1
     return k
+
+
+@kernel
+def outside_window(ss, i_tmax, t_first, t_last, allowance):
+    """Whether a message spanning t_first..t_last [s] lies outside the stream's plausibility
+    window: t_last more than W + allowance after the stream's newest time ss[i_tmax], or t_first
+    more than W before it (W = ss[SS_WINDOW] if ss has that slot, else no window; no newest time
+    yet: inside)."""
+    if ss.shape[0] <= SS_WINDOW:
+        return False
+    w, tmax = ss[SS_WINDOW], ss[i_tmax]
+    if not np.isfinite(tmax) or not w < np.inf:
+        return False
+    return t_last - tmax > w + allowance or tmax - t_first > w
 
 
 @kernel
@@ -217,8 +237,11 @@ def siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, I, F, chunk, OF, 
     clock (state I, F) and the append of the released samples to the gyro queue arrays q_* from
     row end (:func:`radical_rt.clock_kernels.clock_push_rows`; the caller has made room for
     k·(max_bridge + 1) rows). Returns (WIRE_*, rows appended); WIRE_DUPLICATE / WIRE_BACKWARDS:
-    refused by the time check, nothing changed."""
+    refused by the time check, nothing changed; WIRE_JUMP: outside the plausibility window
+    (:func:`outside_window`), nothing changed."""
     k = t_bus.shape[0]
+    if outside_window(ss, i_tmax, t_bus[0], t_bus[k - 1], k * SPAN_PER_SAMPLE_S):
+        return WIRE_JUMP, 0
     last = ss[i_last]
     if t_bus[0] == last:
         return WIRE_DUPLICATE, 0
@@ -237,7 +260,7 @@ def siru_intake(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap, ss, i_la
     """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, then
     :func:`siru_accept`. Returns (WIRE_*, k, rows appended): WIRE_FALLBACK — not the plain
     layout (nothing changed); WIRE_GROW — the column buffers need k rows; WIRE_DUPLICATE /
-    WIRE_BACKWARDS — refused by the time check (nothing changed)."""
+    WIRE_BACKWARDS / WIRE_JUMP — refused by the time check (nothing changed)."""
     k = parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap)
     if k == FALLBACK:
         return WIRE_FALLBACK, 0, 0

@@ -25,14 +25,17 @@ from .clock import ClockConfig, SiruClock
 from .filter import Engine
 from .flags import Flag, flag_names
 from .gyro_queue import GyroQueue, predict_pending
+from .input_guard import TimeJump
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
-from .siru_wire import WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, SiruWire
+from .siru_wire import SS_WINDOW, WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, WIRE_JUMP, SiruWire
+from .stream_guard import StreamGuards
 from .telemetry import PacketSpec, build, default_packets, read_field
 from .tracker_queue import (
     IN_BACKWARDS,
     IN_DUPLICATE,
     IN_FALLBACK,
     IN_FULL,
+    IN_JUMP,
     IN_RELEASE,
     PLAN_GO,
     SI_LATE,
@@ -51,12 +54,15 @@ INPUT_TOPICS = ("siru", "st1", "st2", "temp")
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
 
 
-class StreamProcessor:
-    """Engine + clock + reorder buffer + output scheduling for one vehicle."""
+class StreamProcessor(StreamGuards):
+    """Engine + clock + reorder buffer + output scheduling for one vehicle.
+
+    The input sanity rules (time window, jumps, tracker conflicts, losses) and their settings
+    are those of :class:`radical_rt.stream_guard.StreamGuards` (docs/node.md, "Time sanity")."""
 
     def __init__(self, engine: Engine, clock: SiruClock | None = None,
                  packets: dict[str, PacketSpec] | None = None, reorder_slack_s: float = 0.05,
-                 diag_period_s: float = 1.0, reject_hold_s: float = 1.0) -> None:
+                 diag_period_s: float = 1.0, reject_hold_s: float = 1.0, **guard) -> None:
         self.engine = engine
         self.clock = clock or SiruClock(ClockConfig(), n_gyro=engine.n_gyro)
         self.packets = packets or default_packets()
@@ -64,6 +70,7 @@ class StreamProcessor:
         self.diag = PacketSpec("diag", [], period_s=diag_period_s)
         self.rejected: dict[str, int] = defaultdict(int)
         self._tq = TrackerQueue()  # waiting tracker samples and the shared stream times
+        self._init_guards(**guard)
         self.temps: dict[str, float] = {}
         self.last_reject_t = -math.inf
         self._out: list[tuple[str, dict[str, Any]]] = []
@@ -79,6 +86,7 @@ class StreamProcessor:
 
     # ---------------------------------------------------------------- input side
     def _begin_stream(self) -> None:
+        self._guard_begin_stream()
         self._tq.clear()  # t_max, released_t and the trackers' last times: −inf
         self.last_t: dict[str, float] = {}  # temp (siru's and the trackers' are in the queue's ss)
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
@@ -100,6 +108,10 @@ class StreamProcessor:
         try:
             if topic not in INPUT_TOPICS:
                 raise InputError("unknown_topic", f"unknown input topic {topic!r}")
+            if isinstance(payload, (bytes, bytearray, memoryview)) \
+                    and len(payload) > self.max_payload_bytes:
+                raise InputError("too_large", f"{topic} payload of {len(payload)} bytes exceeds "
+                                              f"the bound {self.max_payload_bytes}")
             if topic == "siru":
                 self._feed_siru(payload)
             elif topic == "temp":
@@ -108,8 +120,13 @@ class StreamProcessor:
                 self.temps.update(values)
             else:
                 released = self._feed_tracker(topic, payload)
+        except TimeJump as exc:
+            self._on_jump(topic, payload, exc)
         except InputError as exc:
             self._reject(topic, exc)
+        else:
+            if self._jumps.held:  # a message inside the window: the held candidates were false
+                self._discard_candidates()
         if not released:
             self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
                           defer=topic != "siru")
@@ -119,6 +136,10 @@ class StreamProcessor:
         return self.take_outputs()
 
     def _check_time(self, topic: str, t: float) -> None:
+        ss = self._tq.ss
+        t_ref, w = float(ss[SS_T_MAX]), float(ss[SS_WINDOW])
+        if math.isfinite(t_ref) and (t - t_ref > w or t_ref - t > w):
+            raise TimeJump(topic, t, t, t_ref)
         last = self.last_t.get(topic, -math.inf)
         if t == last:
             raise InputError("duplicate", f"{topic} sample at t_bus={t} repeats the previous one")
@@ -134,19 +155,29 @@ class StreamProcessor:
         (:meth:`radical_rt.clock.SiruClock.accept`)."""
         ss, gq = self._tq.ss, self._gq
         status = WIRE_FALLBACK
+        prev = float(ss[SS_LAST_SIRU])
         if isinstance(payload, (bytes, bytearray, memoryview)):
-            status, _k, m = self.clock.intake(self._wire, payload, gq, ss, SS_LAST_SIRU,
-                                              SS_T_MAX)
+            status, k, m = self.clock.intake(self._wire, payload, gq, ss, SS_LAST_SIRU,
+                                             SS_T_MAX)
             t0 = float(self._wire.t_bus[0])
+            if status == WIRE_JUMP:
+                w = self._wire
+                raise TimeJump("siru", t0, float(w.t_bus[k - 1]), float(ss[SS_T_MAX]),
+                               (int(w.tt[0]), int(w.tt[k - 1])))
         if status == WIRE_FALLBACK:
             t_bus, tt, dth, st = decode_siru(unpack(payload), self.engine.n_gyro)
             t0 = float(t_bus[0])
             status, m = self.clock.accept(t_bus, tt, dth, st, gq, ss, SS_LAST_SIRU, SS_T_MAX)
+            if status == WIRE_JUMP:
+                raise TimeJump("siru", t0, float(t_bus[-1]), float(ss[SS_T_MAX]),
+                               (int(tt[0]), int(tt[-1])))
         if status == WIRE_DUPLICATE:
             raise InputError("duplicate", f"siru sample at t_bus={t0} repeats the previous one")
         if status == WIRE_BACKWARDS:
             raise InputError("time_backwards",
                              f"siru t_bus={t0} is before the previous {float(ss[SS_LAST_SIRU])}")
+        if t0 - prev > self.input_gap_s and prev > -math.inf:  # a gap in the siru bus times
+            self._note_input_gap(t0 - prev)
         if m:
             self.t_now = float(gq.t[gq.end - 1])
             self._new_sample = True
@@ -161,6 +192,9 @@ class StreamProcessor:
         si = e.si
         plain = isinstance(payload, (bytes, bytearray, memoryview))
         decoded = None
+        if self._conflict.until[j] > -math.inf and self._conflicted(j, topic, payload):
+            return False  # in conflict: not used (counted)
+        prev = float(tq.ss[SS_LAST + j])
         while True:  # once, or again after the queue grew (IN_FULL: nothing changed)
             args = (j, si.latency_st_s, self.reorder_slack_s, tq.ss, tq.si, tq.ev_f, tq.ev_i,
                     gq.t, gq.head, gq.end, int(e.acc_i[0]), si.prop_window)
@@ -172,7 +206,19 @@ class StreamProcessor:
                 code = tracker_accept(*decoded, *args)
             if code != IN_FULL:
                 break
-            tq.grow()
+            if not tq.grow(self.max_tracker_rows):
+                raise InputError("queue_full", f"{topic}: {len(tq)} tracker samples already wait "
+                                               f"for release (bound {self.max_tracker_rows})")
+        t_in = float(tq.ss[SS_T_IN])
+        if code == IN_JUMP:
+            raise TimeJump(topic, t_in, t_in, float(tq.ss[SS_T_MAX]))
+        q_in = tq.q_work if decoded is None else decoded[1]
+        if code >= 0:  # taken in: remembered; closer than one tracker can: evidence (stream_guard)
+            self._last_q[j] = q_in.tobytes()
+            if abs(t_in - prev) < self._min_interval_s:
+                self._conflict_evidence(j, t_in)
+        elif abs(t_in - prev) < self._min_interval_s:
+            self._tracker_evidence(j, code, t_in, q_in)
         if code == IN_DUPLICATE or code == IN_BACKWARDS:
             t, last = float(tq.ss[SS_T_IN]), float(tq.ss[SS_LAST + j])
             if code == IN_DUPLICATE:
@@ -214,6 +260,7 @@ class StreamProcessor:
 
     def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
         """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
+        self._discard_candidates()  # held jump candidates never confirmed: rejected
         out = self.clock.flush()
         if len(out.t):
             self._gq.push(out)
@@ -241,7 +288,7 @@ class StreamProcessor:
             f |= _CLOCK_ANOMALY
         if self.engine.t - self.last_reject_t <= self.reject_hold_s or self.t_max == self.last_reject_t:
             f |= _INPUT_REJECTED
-        return f
+        return f | self._guard_flags()
 
     def flag_names(self) -> list[str]:
         return flag_names(self.flags)
@@ -255,6 +302,7 @@ class StreamProcessor:
                "st2_used": e["st2_used"], "st2_edited": e["st2_edited"],
                "parity_used": e["parity_used"], "parity_edited": e["parity_edited"],
                "input_rejected": int(sum(self.rejected.values())), "late_dropped": self.late_dropped}
+        out.update(self._guard_counters())
         return out
 
     def _wake(self) -> tuple[float, float]:
@@ -266,9 +314,9 @@ class StreamProcessor:
         wake_t = self._packet_wake
         if wake_t is None:
             wake_t = self._packet_wake = self._next_packet_t()
-        wake_e = math.inf
+        wake_e = self._guard_wake()  # a held flag's hold ends
         if self._last_flags & _INPUT_REJECTED and self.t_max != self.last_reject_t:
-            wake_e = self.last_reject_t + self.reject_hold_s - 1e-6  # the hold ends
+            wake_e = min(wake_e, self.last_reject_t + self.reject_hold_s - 1e-6)  # the hold ends
         return wake_t, wake_e
 
     def _next_packet_t(self) -> float:
@@ -301,20 +349,23 @@ class StreamProcessor:
 
     def _on_window(self, t: float) -> None:
         self._packet_wake = None  # the packets' due() below moves their schedule
-        flags = self.flags
-        if flags != self._last_flags:
-            prev = self._last_flags or 0
-            self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
-                                        "set": flag_names(flags & ~prev),
-                                        "cleared": flag_names(prev & ~flags),
-                                        "detail": self._fault_detail()}))
-            self._last_flags = flags
+        if self.flags != self._last_flags:
+            self._emit_fault(t)
         memo: dict[str, Any] = {}  # the packets and the diag of this close read one state
         for spec in self.packets.values():
             if spec.trigger == "window" and spec.due(t):
                 self._out.append((f"tlm/{spec.name}", build(spec, self, memo=memo)))
         if self.diag.due(t):
             self._out.append(("diag", self.diag_message(memo)))
+
+    def _emit_fault(self, t: float) -> None:
+        flags, prev = self.flags, self._last_flags or 0
+        self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
+                                    "set": flag_names(flags & ~prev),
+                                    "cleared": flag_names(prev & ~flags),
+                                    "detail": self._fault_detail()}))
+        self._last_flags = flags
+        self._guard_published(flags, t)
 
     def _sample_outputs(self) -> None:
         """Sample-triggered packets due at the newest sample time, with the predicted attitude

@@ -13,11 +13,12 @@ arithmetic), so the event sequence the engine sees is unchanged.
 
 Shared state (owned by the stream processor):
 
-* ``ss`` float64 (6,), the stream's times: ``SS_T_MAX`` (newest t_bus of any input [s]),
+* ``ss`` float64 (7,), the stream's times: ``SS_T_MAX`` (newest t_bus of any input [s]),
   ``SS_RELEASED`` (epoch up to which samples count as released [s]), ``SS_LAST + j`` (last t_bus
   of tracker j = 1, 2), ``SS_T_IN`` (t_bus of the last tracker sample taken in or refused, for
   the diagnostics), ``SS_LAST_SIRU`` (last t_bus of the previous siru batch; the compiled siru
-  intake, :func:`radical_rt.siru_wire.siru_intake`, checks and updates it).
+  intake, :func:`radical_rt.siru_wire.siru_intake`, checks and updates it), and
+  ``SS_WINDOW`` the plausibility window W [s] of both intakes (configuration, inf: off).
 * ``si`` int64 (4,): ``SI_LATE`` (late samples dropped), ``SI_SEQ`` (arrival counter),
   ``SI_HEAD``, ``SI_END`` (the waiting rows are head..end−1).
 * rows: ``ev_f`` (cap, 5) epoch [s], q_st_from_inertial (4,); ``ev_i`` (cap, 4) tracker j,
@@ -29,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
-from .packets import QUAT_NORM_TOL
-from .siru_wire import _be, _integer
+from .packets import MAX_N_STARS, QUAT_NORM_TOL
+from .siru_wire import SS_WINDOW, _be, _integer, outside_window
 
 SS_T_MAX, SS_RELEASED, SS_LAST, SS_T_IN, SS_LAST_SIRU = 0, 1, 1, 4, 5  # tracker j: SS_LAST + j
 SI_LATE, SI_SEQ, SI_HEAD, SI_END = 0, 1, 2, 3
@@ -40,6 +41,7 @@ IN_FALLBACK = -1  # not the plain layout: decode it in Python, then tracker_acce
 IN_DUPLICATE = -2  # t_bus equals the tracker's previous one (nothing changed)
 IN_BACKWARDS = -3  # t_bus before the tracker's previous one (nothing changed)
 IN_FULL = -4  # no room for a row (nothing changed): grow, then call again
+IN_JUMP = -5  # t_bus outside the stream's plausibility window (nothing changed but ss[SS_T_IN])
 IN_IDLE = 0  # taken in (or dropped as late); no release is due
 IN_RELEASE = 1  # taken in (or dropped as late); the stream should release now
 
@@ -87,7 +89,7 @@ def _float64(buf, p, n):
 @kernel
 def parse_tracker(buf, q_out):
     """Decode the msgpack bytes buf (uint8 (n,)) of a plain tracker message — a map of exactly
-    v = 1, t_bus (float), q (4 floats), n_stars (int ≥ 0), valid (bool), any key order, nothing
+    v = 1, t_bus (float), q (4 floats), n_stars (int 0..MAX_N_STARS), valid (bool), any key order, nothing
     after it — with q normalized as :func:`radical_rt.packets.decode_tracker` does (‖q‖ within
     QUAT_NORM_TOL of 1 required). Returns (ok, t_bus, n_stars, valid) and q_out (4,); not ok:
     take the general path (msgpack + decode_tracker), which also names every problem."""
@@ -120,7 +122,7 @@ def parse_tracker(buf, q_out):
                 q_out[c] = x
         elif key == 8:  # n_stars
             ok, ns, p = _integer(buf, p, n)
-            if not ok or ns < 0:
+            if not ok or ns < 0 or ns > MAX_N_STARS:
                 return False, 0.0, 0, False
         else:  # valid
             if p >= n or (buf[p] != 0xC2 and buf[p] != 0xC3):
@@ -166,9 +168,11 @@ def tracker_accept(t, q, n_stars, valid, j, latency, slack, ss, si, ev_f, ev_i, 
     times gq_t (head..end−1), the engine's current window count acc0 and the window length: a
     release is due if a tracker sample is due or the due gyro samples complete a window; else
     the due gyro samples count as released (ss[SS_RELEASED]). Returns IN_*; on IN_DUPLICATE,
-    IN_BACKWARDS or IN_FULL nothing has changed."""
+    IN_BACKWARDS, IN_JUMP or IN_FULL nothing has changed (but ss[SS_T_IN])."""
     last = ss[SS_LAST + j]
     ss[SS_T_IN] = t
+    if outside_window(ss, SS_T_MAX, t, t, 0.0):
+        return IN_JUMP
     if t == last:
         return IN_DUPLICATE
     if t < last:
@@ -258,7 +262,8 @@ class TrackerQueue:
     per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see fast_release)."""
 
     def __init__(self, capacity: int = 64) -> None:
-        self.ss = np.zeros(6)
+        self.ss = np.zeros(SS_WINDOW + 1)
+        self.ss[SS_WINDOW] = np.inf  # no plausibility window unless the stream sets one
         self.si = np.zeros(4, np.int64)
         self.q_work = np.zeros(4)
         self._alloc(capacity)
@@ -270,19 +275,23 @@ class TrackerQueue:
 
     def clear(self) -> None:
         """A new stream: no waiting rows, no times seen (the late counter is kept)."""
-        self.ss[:] = -np.inf
+        self.ss[:SS_WINDOW] = -np.inf  # (the window is configuration: kept)
         self.si[SI_SEQ:] = 0
 
     def __len__(self) -> int:
         return int(self.si[SI_END] - self.si[SI_HEAD])
 
-    def grow(self) -> None:
-        """Double the capacity (after IN_FULL), keeping the waiting rows."""
+    def grow(self, max_rows: int | None = None) -> bool:
+        """Double the capacity (after IN_FULL), keeping the waiting rows; False (nothing
+        changed) when more than max_rows rows would wait."""
         h, e = int(self.si[SI_HEAD]), int(self.si[SI_END])
+        if max_rows is not None and e - h >= max_rows:
+            return False
         old_f, old_i = self.ev_f[h:e].copy(), self.ev_i[h:e].copy()
         self._alloc(2 * self.ev_f.shape[0])
         self.ev_f[:e - h], self.ev_i[:e - h] = old_f, old_i
         self.si[SI_HEAD], self.si[SI_END] = 0, e - h
+        return True
 
     def block(self, e1: int) -> EventBlock:
         """The waiting rows head..e1−1 as an :class:`EventBlock`; the head moves to e1."""

@@ -77,7 +77,8 @@ class Transport(Protocol):
 
     def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> Handle: ...
 
-    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> Inbox: ...
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
+              capacity_bytes: int | None = None) -> Inbox: ...
 
     def put(self, key: str, payload: bytes, block: bool = False,
             remote_only: bool = False) -> None: ...
@@ -141,25 +142,36 @@ class _Decl:
 
 
 class _MemInbox:
-    """:class:`Inbox` of the in-memory bus: a deque with a condition. When it is full, the
-    delivering thread waits up to ``wait_s`` for room (back-pressure), then drops and counts."""
+    """:class:`Inbox` of the in-memory bus: a deque with a condition, bounded in samples
+    (``capacity``) and in payload bytes (``capacity_bytes``; None: no byte bound). When it is
+    full, the delivering thread waits up to ``wait_s`` for room (back-pressure), then drops and
+    counts. A payload larger than the whole byte bound is dropped at once."""
 
     _WAKE = object()
 
-    def __init__(self, capacity: int, wait_s: float) -> None:
+    def __init__(self, capacity: int, wait_s: float, capacity_bytes: int | None = None) -> None:
         self.capacity, self.wait_s = capacity, wait_s
+        self.capacity_bytes = capacity_bytes
+        self.nbytes = 0  # payload bytes waiting
         self._items: deque = deque()
         self._cond = threading.Condition()
         self._dropped: dict[str, int] = {}
         self._decl: _Decl | None = None
 
+    def _room(self, n: int) -> bool:
+        return len(self._items) < self.capacity and (
+            self.capacity_bytes is None or self.nbytes + n <= self.capacity_bytes)
+
     def push(self, key: str, data: bytes) -> None:
+        n = len(data)
         with self._cond:
-            if len(self._items) >= self.capacity and not self._cond.wait_for(
-                    lambda: len(self._items) < self.capacity, timeout=self.wait_s):
+            if not self._room(n) and (
+                    (self.capacity_bytes is not None and n > self.capacity_bytes)
+                    or not self._cond.wait_for(lambda: self._room(n), timeout=self.wait_s)):
                 self._dropped[key] = self._dropped.get(key, 0) + 1
                 return
             self._items.append((key, data))
+            self.nbytes += n
             self._cond.notify_all()
 
     def _pop(self, block: bool):
@@ -170,7 +182,10 @@ class _MemInbox:
                 return None
             item = self._items.popleft()
             self._cond.notify_all()  # room for a waiting push
-            return None if item is self._WAKE else item
+            if item is self._WAKE:
+                return None
+            self.nbytes -= len(item[1])
+            return item
 
     def try_recv(self) -> tuple[str, bytes] | None:
         return self._pop(False)
@@ -259,8 +274,9 @@ class InMemoryTransport:
     def subscribe(self, key: str, callback: SampleCallback, remote_only: bool = False) -> _Decl:
         return self._declare("sub", key, callback, self if remote_only else None)
 
-    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> _MemInbox:
-        box = _MemInbox(capacity, wait_s)
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
+              capacity_bytes: int | None = None) -> _MemInbox:
+        box = _MemInbox(capacity, wait_s, capacity_bytes)
         box._decl = self.subscribe(key, box.push, remote_only=True)
         return box
 
@@ -335,15 +351,23 @@ class _ZInbox:
     data with ``remote_only`` (it would otherwise come back into this FIFO).
     """
 
-    def __init__(self, transport: ZenohTransport, key: str, capacity: int) -> None:
+    def __init__(self, transport: ZenohTransport, key: str, capacity: int,
+                 max_payload: int | None = None) -> None:
         z = transport._z
         self._t, self._z = transport, z
+        self.max_payload = max_payload  # larger payloads are dropped uncopied (take_oversize)
+        self._oversize: dict[str, int] = {}
         self.wake_key = _wake_key(key)
         self._sub: Any = transport.session.declare_subscriber(key, z.handlers.FifoChannel(capacity))
 
     def _item(self, s: Any) -> tuple[str, bytes] | None:
         key = str(s.key_expr)
-        return None if key == self.wake_key else (key, s.payload.to_bytes())
+        if key == self.wake_key:
+            return None
+        if self.max_payload is not None and len(s.payload) > self.max_payload:
+            self._oversize[key] = self._oversize.get(key, 0) + 1  # never copied into Python
+            return None
+        return key, s.payload.to_bytes()
 
     def try_recv(self) -> tuple[str, bytes] | None:
         while (s := self._sub.try_recv()) is not None:
@@ -358,6 +382,11 @@ class _ZInbox:
         except Exception as exc:  # undeclared subscriber or closed session
             log.debug("inbox recv: %s", exc)
             return None
+
+    def take_oversize(self) -> dict[str, int]:
+        """Samples dropped since the last call because they exceeded max_payload, per key."""
+        out, self._oversize = self._oversize, {}
+        return out
 
     def wake(self) -> None:
         try:
@@ -440,9 +469,12 @@ class ZenohTransport:
         pub = self._pubs.get((key, block, remote_only)) or self._publisher(key, block, remote_only)
         pub.put(payload)
 
-    def inbox(self, key: str, capacity: int, wait_s: float = 1.0) -> _ZInbox:
-        """A pulled FIFO of the samples on ``key`` (wait_s is unused: the FIFO back-pressures)."""
-        return _ZInbox(self, key, capacity)
+    def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
+              capacity_bytes: int | None = None, max_payload: int | None = None) -> _ZInbox:
+        """A pulled FIFO of the samples on ``key`` (wait_s is unused: the FIFO back-pressures;
+        capacity_bytes is unused: a Zenoh FIFO counts samples, docs/node.md "Losses and
+        bounds"; payloads over max_payload bytes are dropped without being copied)."""
+        return _ZInbox(self, key, capacity, max_payload)
 
     def queryable(self, key: str, handler: QueryHandler) -> _ZHandle:
         def on_query(q: Any) -> None:
@@ -459,9 +491,25 @@ class ZenohTransport:
     def liveliness_token(self, key: str) -> _ZHandle:
         return self._keep(self.session.liveliness().declare_token(key))
 
+    MATCH_WAIT_S = 2.0  # longest wait for a matching queryable before a get
+
     def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+        """Query ``key``. A session that has just connected may not know the routes to the
+        queryables yet (a get then returns no reply at once: issue 23, a client right after the
+        node's "ready" line): first wait, up to min(timeout, MATCH_WAIT_S), until a querier on
+        the key has a matching queryable."""
+        querier = self.session.declare_querier(key, timeout=timeout)
+        try:
+            end = time.monotonic() + min(timeout, self.MATCH_WAIT_S)
+            while not querier.matching_status.matching and time.monotonic() < end:
+                time.sleep(0.005)
+            return self._replies(key, querier.get(payload=payload))
+        finally:
+            querier.undeclare()
+
+    def _replies(self, key: str, replies: Any) -> list[bytes]:
         out = []
-        for r in self.session.get(key, payload=payload, timeout=timeout):
+        for r in replies:
             if r.ok is not None:
                 out.append(r.ok.payload.to_bytes())
             else:

@@ -12,7 +12,10 @@ JSON schema when the topic has one:
   and the channel metadata ``vehicle``). Such a file holds several streams and is for inspection,
   not for replay/process.
 
-Liveliness (``alive/**``) and command (``cmd/**``) keys are not recorded.
+Liveliness (``alive/**``) and command (``cmd/**``) keys are not recorded, nor the end-of-stream
+markers (``eos``, docs/replay_record.md): the recorder compares the counts a marker carries with
+the messages it recorded since the previous marker of that vehicle and reports the difference as
+``lost`` (messages the publisher sent that never reached the file).
 
 log_time = publish_time = the message's bus time in ns (CONTRACT §1.2), read from the payload's
 top-level ``t_bus`` or ``t`` (the last element of a columnar ``t_bus``, e.g. ``/siru``) without
@@ -37,7 +40,8 @@ Examples::
     radical record -o tlm.mcap --vehicle messenger --topics tlm/small,fault --duration 600
     radical record -o all.mcap --vehicle '*' --listen tcp/127.0.0.1:7450
 
-Exit status: 0 recorded, 1 Zenoh failure, 2 bad input (output not writable, bad option).
+Exit status: 0 recorded, 1 Zenoh failure, 2 bad input (output not writable, bad option), 3
+recorded but messages were dropped (queue full) or lost (end-of-stream markers).
 """
 
 from __future__ import annotations
@@ -201,10 +205,12 @@ def record(out_path: str | os.PathLike[str], vehicle: str, session: Any,
     subs: list[Any] = []
     counts: dict[str, int] = {}
     skipped = fallbacks = qmax = 0
+    eos_seen = lost = 0
+    since: dict[tuple[str, str], int] = {}  # (vehicle, topic) → recorded since its last marker
     anchors: dict[str, tuple[int, int]] = {}  # vehicle -> (bus ns, receive monotonic ns)
 
     def handle(item: tuple[str, bytes, int, bool]) -> None:
-        nonlocal skipped, fallbacks
+        nonlocal skipped, fallbacks, eos_seen, lost
         key, data, t_recv, is_put = item
         parts = key.split("/", 2)
         if len(parts) < 3 or parts[0] != "radical" or not is_put \
@@ -212,6 +218,11 @@ def record(out_path: str | os.PathLike[str], vehicle: str, session: Any,
             skipped += 1
             return
         veh, rest = parts[1], parts[2]
+        if rest == "eos":
+            eos_seen += 1
+            lost += _eos_lost(data, veh, since)
+            return
+        since[(veh, rest)] = since.get((veh, rest), 0) + 1
         topic = f"/{veh}/{rest}" if wildcard else f"/{rest}"
         t = bus_time_ns(data)
         if t is not None:
@@ -270,7 +281,22 @@ def record(out_path: str | os.PathLike[str], vehicle: str, session: Any,
             writer.close()
     return {"path": os.fspath(out_path), "counts": dict(sorted(counts.items())),
             "messages": sum(counts.values()), "dropped": drops[0], "skipped": skipped,
-            "time_fallbacks": fallbacks, "queue_max": qmax, "wall_s": time.monotonic() - t0}
+            "time_fallbacks": fallbacks, "queue_max": qmax, "wall_s": time.monotonic() - t0,
+            "eos": eos_seen, "lost": lost}
+
+
+def _eos_lost(data: bytes, veh: str, since: dict[tuple[str, str], int]) -> int:
+    """Messages an end-of-stream marker reports sent that were not recorded since the vehicle's
+    previous marker (the per-topic counts restart); 0 for a marker that does not decode."""
+    try:
+        counts = msgpack.unpackb(data, raw=False, strict_map_key=False).get("counts", {})
+        items = [(str(t), int(n)) for t, n in counts.items()]
+    except Exception:  # not a map, or counts not a map of integers
+        return 0
+    lost = 0
+    for t, n in items:
+        lost += max(0, n - since.pop((veh, t), 0))
+    return lost
 
 
 # -------------------------------------------------------------------------------------- CLI
@@ -374,7 +400,8 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(sig, h)
     per = ", ".join(f"{t} {n}" for t, n in res["counts"].items()) or "nothing"
     print(f"radical record: wrote {res['messages']} messages ({per}) to {res['path']} in "
-          f"{res['wall_s']:.1f} s; dropped {res['dropped']}", file=sys.stderr)
+          f"{res['wall_s']:.1f} s; dropped {res['dropped']}; lost {res['lost']} (reported by "
+          f"{res['eos']} end-of-stream marker(s))", file=sys.stderr)
     if args.json:
         print(json.dumps(res, sort_keys=True))
-    return 0
+    return 3 if res["dropped"] or res["lost"] else 0

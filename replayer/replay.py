@@ -25,14 +25,20 @@ is a Zenoh client of that endpoint (the node, a peer, routes between its clients
 connected ``radical record``); with ``--listen`` it is a peer. A client cannot open before its
 endpoint is up: it fails at once, or retries for the ``--wait-node``/``--wait-subscribers`` time.
 
+Each archive ends with an end-of-stream marker on ``radical/<vehicle>/eos`` (docs/replay_record.md)
+that carries the messages sent per topic; messages put while a publisher had no matching
+subscriber, or whose put failed, are reported as not delivered.
+
 Exit status: 0 done, 1 run-time failure (no node within the timeout, Zenoh error), 2 bad input
-(missing or unreadable archive, no input channel, bad option), 130 interrupted.
+(missing or unreadable archive, no input channel, bad option), 3 done but some messages were
+not delivered, 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import gc
 import json
 import logging
@@ -48,7 +54,12 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import msgpack
+
+from radical_rt.eos import EOS_TOPIC, make_eos
 from replayer.archive import INPUT_TOPICS, ArchiveError, ArchiveReader, TruncatedArchiveWarning
+
+log = logging.getLogger("radical.replay")
 
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
 ENCODING = "application/msgpack"  # Zenoh has no predefined msgpack encoding constant
@@ -310,6 +321,16 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
                                          congestion_control=zenoh.CongestionControl.BLOCK)
             for t, k in keys.items()}
     counts = dict.fromkeys(used, 0)
+    # delivery: messages put while a publisher had no matching subscriber (nobody received them)
+    # and puts that failed; the end-of-stream markers sent (radical_rt.eos)
+    matched = {t: bool(p.matching_status.matching) for t, p in pubs.items()}
+    listeners = [p.declare_matching_listener(functools.partial(_on_matching, matched, t))
+                 for t, p in pubs.items() if hasattr(p, "declare_matching_listener")]
+    unmatched, failed = dict.fromkeys(used, 0), dict.fromkeys(used, 0)
+    eos_pub = session.declare_publisher(f"radical/{vehicle}/{EOS_TOPIC}",
+                                        encoding=zenoh.Encoding(ENCODING),
+                                        congestion_control=zenoh.CongestionControl.BLOCK)
+    eos_sent = 0
     late: list[float] = []
     archive_s, stopped = 0.0, False
     first_pub = last_pub = None
@@ -346,6 +367,7 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
                 stopped = True
                 break
             t_ref = t_last = None
+            src_counts = dict.fromkeys(used, 0)
             shown, next_post = 0.0, 0.0
             stream = streams[i]
             while (item := stream.pop()) is not None:
@@ -367,8 +389,17 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
                     break
                 else:
                     now = time.monotonic()
-                pubs[topic].put(data)
+                try:
+                    pubs[topic].put(data)
+                except Exception as exc:  # a closed session: counted, reported, not fatal here
+                    failed[topic] += 1
+                    if failed[topic] == 1:
+                        log.warning("replay: put on %s failed: %s", keys[topic], exc)
+                    continue
+                if not matched[topic]:
+                    unmatched[topic] += 1
                 counts[topic] += 1
+                src_counts[topic] += 1
                 t_last = t_ns
                 if first_pub is None:
                     first_pub = now
@@ -391,13 +422,27 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
             bar.update(max(src.span_s - shown, 0.0))
             if stopped:
                 break
+            if t_ref is not None:  # the end-of-stream marker, behind the stream's last message
+                last = i == len(sources) - 1
+                eos = make_eos(src_counts, "none" if last else "warm", source=src.path,
+                               t_bus=(t_last or t_ref) * 1e-9)
+                try:
+                    eos_pub.put(msgpack.packb(eos))
+                    eos_sent += 1
+                except Exception as exc:
+                    log.warning("replay: end-of-stream marker not sent: %s", exc)
     finally:
         if frozen:
             gc.unfreeze()
         bar.close()
         for r in readers:
             r.close()
-        for p in pubs.values():
+        for lst in listeners:
+            try:
+                lst.undeclare()
+            except Exception:  # session already closed
+                pass
+        for p in [*pubs.values(), eos_pub]:
             try:
                 p.undeclare()
             except Exception:  # session already closed
@@ -406,7 +451,13 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
     return {"counts": counts, "messages": sum(counts.values()),
             "files": [s.path for s in sources], "wall_s": wall, "archive_s": archive_s,
             "achieved_rate": archive_s / wall if wall > 0 else None, "rate": rate,
-            "stopped": stopped, "pacing": _percentiles(late) if rate is not None else None}
+            "stopped": stopped, "pacing": _percentiles(late) if rate is not None else None,
+            "unmatched": unmatched, "failed": failed, "eos_sent": eos_sent,
+            "not_delivered": sum(unmatched.values()) + sum(failed.values())}
+
+
+def _on_matching(matched: dict[str, bool], topic: str, status: Any) -> None:
+    matched[topic] = bool(status.matching)
 
 
 # -------------------------------------------------------------------------------------- CLI
@@ -475,6 +526,11 @@ def _summary_line(res: dict[str, Any]) -> str:
     if pc:
         text += (f"; pacing error p50 {pc['p50_s'] * 1e3:.3f} ms, p99 {pc['p99_s'] * 1e3:.3f} ms, "
                  f"max {pc['max_s'] * 1e3:.3f} ms")
+    nd = res.get("not_delivered", 0)
+    if nd:
+        lost = {t.lstrip("/"): res["unmatched"][t] + res["failed"][t] for t in res["unmatched"]
+                if res["unmatched"][t] + res["failed"][t]}
+        text += f"; NOT DELIVERED {nd} ({lost}: no subscriber or failed put)"
     return text + (" (stopped early)" if res["stopped"] else "")
 
 
@@ -567,4 +623,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"radical replay: {_summary_line(res)}", file=sys.stderr)
     if args.json:
         print(json.dumps(res, sort_keys=True))
-    return 130 if res["stopped"] else 0
+    if res["stopped"]:
+        return 130
+    return 3 if res.get("not_delivered") else 0

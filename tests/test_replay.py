@@ -15,13 +15,14 @@ import warnings
 from collections import defaultdict
 from pathlib import Path
 
+import msgpack
 import pytest
 
 from radical_rt import zconfig
 from radical_rt.cli import main as cli_main
 from replayer.archive import INPUT_TOPICS, ArchiveReader, ArchiveWriter, TruncatedArchiveWarning
 from replayer.record import record
-from replayer.replay import ReplayError, check_inputs, replay, wait_for_node
+from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
 from replayer.synth.api import synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,15 +127,17 @@ class _FakePub:
 
 
 class FakeSession:
-    """Enough of zenoh.Session for replay(): publishers that log (monotonic, key, payload)."""
+    """Enough of zenoh.Session for replay(): publishers that log (monotonic, key, payload); the
+    end-of-stream markers (``.../eos``) go to their own log."""
 
     def __init__(self) -> None:
         self.log: list[tuple[float, str, bytes]] = []
+        self.eos_log: list[tuple[float, str, bytes]] = []
         self.declared: list[tuple[str, dict]] = []
 
     def declare_publisher(self, key: str, **kw) -> _FakePub:
         self.declared.append((key, kw))
-        return _FakePub(self.log, key)
+        return _FakePub(self.eos_log if key.endswith("/eos") else self.log, key)
 
 
 def _order(path: Path, start_ns=None, end_ns=None) -> list[tuple[str, int, bytes]]:
@@ -154,6 +157,12 @@ def test_fake_bus_order_payloads_keys_and_block(archives):
     for _key, kw in s.declared:  # BLOCK always: replay data must not be dropped
         assert kw["congestion_control"] == zenoh.CongestionControl.BLOCK
     assert abs(res["archive_s"] - 59.99) < 0.02
+    # one end-of-stream marker, after the last message, with the counts sent
+    (t_eos, key, data), = s.eos_log
+    eos = msgpack.unpackb(data)
+    assert key == f"radical/{VEH}/eos" and t_eos >= s.log[-1][0] and eos["next"] == "none"
+    assert eos["counts"] == {t.lstrip("/"): n for t, n in res["counts"].items()}
+    assert res["eos_sent"] == 1 and res["not_delivered"] == 0
 
 
 def test_fake_bus_paced_sequence_and_window(archives):
@@ -342,6 +351,8 @@ def test_fast_blocks_on_slow_subscriber_no_loss(archives):
     done = threading.Event()
 
     def slow(sample) -> None:
+        if str(sample.key_expr).endswith("/eos"):
+            return  # the end-of-stream marker (test_fake_bus_order_payloads_keys_and_block)
         got.append(sample.payload.to_bytes())
         time.sleep(0.0005)
         if len(got) == len(want):
@@ -502,10 +513,15 @@ def test_several_files_in_sequence(archives, tmp_path):
     with session(listen=e) as rs, session(connect=e) as ps:
         rs.declare_subscriber(f"radical/{VEH}/*",
                               lambda s: order.append((str(s.key_expr), s.payload.to_bytes())))
+        # (the end-of-stream markers, one after each archive, are checked below)
         rec = Recorder(out, rs)
         res = replay([archives["a"], archives["b"]], VEH, ps, rate=None, wait_subscribers=10)
         rec.finish(res["messages"])
     want = _order(archives["a"]) + _order(archives["b"])
+    eos = [i for i, (k, _d) in enumerate(order) if k.endswith("/eos")]
+    assert eos == [len(_order(archives["a"])), len(order) - 1]  # behind each archive
+    assert [msgpack.unpackb(order[i][1])["next"] for i in eos] == ["warm", "none"]
+    order = [o for i, o in enumerate(order) if i not in eos]
     assert order == [(f"radical/{VEH}/{t.lstrip('/')}", d) for t, _, d in want]
     got = recorded(out)
     wa, wb = inputs_of(archives["a"]), inputs_of(archives["b"])
@@ -620,3 +636,48 @@ def test_progress_bar_on_stderr(archives, capfd):
     err = capfd.readouterr().err
     assert "archive" in err and "t_bus" in err and "x]" in err  # archive time and achieved rate
 
+
+
+# ------------------------------------------------------------------ losses reported (issue 23)
+def test_fake_bus_not_delivered_without_subscriber(archives):
+    """Messages put while no subscriber matches are reported as not delivered (before: the
+    replay reported success)."""
+    s = FakeSession()
+    orig = s.declare_publisher
+
+    def unmatched(key, **kw):
+        p = orig(key, **kw)
+        p.matching_status = type("M", (), {"matching": False})()
+        return p
+    s.declare_publisher = unmatched
+    res = replay([archives["a"]], VEH, s, rate=None, end=5.0)
+    assert res["not_delivered"] == res["messages"] > 0
+    assert sum(res["unmatched"].values()) == res["messages"]
+    assert "NOT DELIVERED" in _summary_line(res)
+
+
+@pytest.mark.zenoh
+def test_record_reports_what_the_marker_says_was_lost(archives, tmp_path):
+    """The recorder compares an end-of-stream marker's counts with what it recorded: here 5
+    siru messages never published (before: only its own queue drops were reported)."""
+    e, out = ep(), tmp_path / "lost.mcap"
+    msgs = _order(archives["a"])
+    skip = {i for i, m in enumerate(msgs) if m[0] == "/siru"}
+    skip = set(sorted(skip)[10:15])
+    sent: dict[str, int] = {}
+    with session(listen=e) as rs, session(connect=e) as ps:
+        rec = Recorder(out, rs)
+        pubs = {t: ps.declare_publisher(f"radical/{VEH}/{t.lstrip('/')}") for t in INPUT_TOPICS}
+        eos_pub = ps.declare_publisher(f"radical/{VEH}/eos")
+        deadline = time.monotonic() + 10
+        while not all(p.matching_status.matching for p in pubs.values()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for i, (t, _ns, data) in enumerate(msgs):
+            sent[t.lstrip("/")] = sent.get(t.lstrip("/"), 0) + 1
+            if i not in skip:
+                pubs[t].put(data)
+        eos_pub.put(msgpack.packb({"v": 1, "next": "none", "counts": sent}))
+        res = rec.finish(len(msgs) - len(skip) + 1)
+    assert res["eos"] == 1 and res["lost"] == 5
+    assert res["messages"] == len(msgs) - 5  # the marker itself is not written

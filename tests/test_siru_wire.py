@@ -46,8 +46,9 @@ def siru_maps(draw):
     t_bus = list(np.cumsum([t0] + steps[:-1]).tolist())
     if draw(st.booleans()):  # integer times are numbers too
         t_bus = [int(math.floor(x)) for x in sorted(t_bus)]
-    num = st.one_of(st.floats(-1e-2, 1e-2, allow_nan=False), st.integers(-3, 3),
-                    st.floats(-1e30, 1e30, allow_nan=False))  # float32 can hold them
+    # valid increments: |dθ| ≤ MAX_DTHETA_RAD (1 rad), integers and float32 included
+    num = st.one_of(st.floats(-1e-2, 1e-2, allow_nan=False), st.integers(-1, 1),
+                    st.floats(-1.0, 1.0, allow_nan=False))
     dtheta = [draw(st.lists(num, min_size=4, max_size=4)) for _ in range(k)]
     tt = draw(st.lists(st.integers(0, 2**32 - 1), min_size=k, max_size=k))
     status = draw(st.lists(st.integers(0, 2**40), min_size=k, max_size=k))
@@ -82,7 +83,7 @@ def test_wide_encodings_of_small_values():
     def key(name):
         return b"\xd9" + bytes([len(name)]) + name.encode()
 
-    rows = b"".join(b"\x94" + b"".join(_be_int(0xD3, "q", v) for v in (-1, 0, 2, -128))
+    rows = b"".join(b"\x94" + b"".join(_be_int(0xD3, "q", v) for v in (-1, 0, 1, -1))  # (|dθ| ≤ 1 rad)
                     for _ in range(2))
     payload = (b"\xde\x00\x05" + key("status") + ints([0, 3], 0xCF, "Q")
                + key("dtheta") + b"\x92" + rows + key("v") + _be_int(0xD0, "b", 1)
@@ -90,7 +91,7 @@ def test_wide_encodings_of_small_values():
     fast = SiruWire(4).decode(payload)
     assert fast is not None
     _same(fast, _general(payload))
-    assert fast[2][0].tolist() == [-1.0, 0.0, 2.0, -128.0]
+    assert fast[2][0].tolist() == [-1.0, 0.0, 1.0, -1.0]
 
 
 def _ok_map(**changes):
@@ -102,6 +103,8 @@ def _ok_map(**changes):
 
 @pytest.mark.parametrize("changes, reason", [
     (dict(dtheta=[[0.1] * 4, [math.nan] * 4]), "nonfinite"),
+    (dict(dtheta=[[0.1] * 4, [0.1, 0.1, 0.1, 1.5]]), "bad_value"),  # beyond 1 rad per sample
+    (dict(dtheta=[[0.1] * 4, [0.1, 0.1, 0.1, -1e300]]), "bad_value"),
     (dict(t_bus=[1.0, math.inf]), "nonfinite"),
     (dict(tt=[10, 2**32]), "bad_value"),
     (dict(tt=[10, 2**64 - 1]), "bad_value"),

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radical_rt.packets import InputError, decode_tracker, unpack
+from radical_rt.packets import MAX_N_STARS, InputError, decode_tracker, unpack
 from radical_rt.tracker_queue import (
     IN_BACKWARDS,
     IN_DUPLICATE,
@@ -167,7 +167,7 @@ def _general(payload):
 
 @settings(max_examples=300, deadline=None)
 @given(st.floats(-1e9, 1e9), st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4),
-       st.integers(0, 2**40), st.booleans(), st.permutations(["v", "t_bus", "q", "n_stars", "valid"]),
+       st.integers(0, MAX_N_STARS), st.booleans(), st.permutations(["v", "t_bus", "q", "n_stars", "valid"]),
        st.floats(0.9995, 1.0005))
 def test_plain_messages_decode_as_the_general_path(t, q, n, valid, order, norm):
     qv = np.array(q)
@@ -187,7 +187,7 @@ def test_plain_messages_decode_as_the_general_path(t, q, n, valid, order, norm):
 @pytest.mark.parametrize("payload", [
     msgpack.packb(_plain(q=[0.5, 0.5, 0.5, 0.6])),  # not unit: the general path names it
     msgpack.packb(_plain(t_bus=math.nan)),
-    msgpack.packb(_plain(n_stars=-1)),
+    msgpack.packb(_plain(n_stars=-1)), msgpack.packb(_plain(n_stars=MAX_N_STARS + 1)),
     msgpack.packb(_plain(valid=1)),
     msgpack.packb(_plain(q=[0.5, 0.5, 0.5])),
     msgpack.packb(_plain(v=2)),
