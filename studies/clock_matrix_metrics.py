@@ -198,13 +198,15 @@ def param_z(summary: dict, archive: str | Path) -> dict:
             "n_within_3sigma": int(sum(b <= 3.0 for b in bad))}
 
 
-def true_wraps(msgs: list, tt_true: np.ndarray, t_true: np.ndarray) -> list[float]:
-    """True times [s] of the sawtooth wraps: where the tag error of each sample's first read
-    (the naive time tags) jumps by more than T/2 (a spate counts once)."""
-    from perf.bench_clock import run_clock, wrap_times
-
-    r = run_clock(msgs, "naive")
-    real = r["tt"] >= 0
-    idx = match_truth(r["tt"][real], tt_true)
-    return wrap_times(r["t"][real] - t_true[idx], t_true[idx])
-
+def true_wraps(t_true: np.ndarray, lead_s: float, bus_period_s: float, t_start_s: float,
+               sep_s: float) -> list[float]:
+    """True times [s] of the sawtooth wraps: where a sample time, moved by the mean read lead,
+    crosses a bus tick (``(t_k + lead − t_start) mod T_bus`` jumps by more than T_bus/2). The
+    sample jitter can make one crossing flicker: crossings closer than ``sep_s`` count once."""
+    t = np.sort(np.asarray(t_true, float))
+    u = np.mod(t + lead_s - t_start_s, bus_period_s)
+    times: list[float] = []
+    for x in t[1:][np.abs(np.diff(u)) > bus_period_s / 2]:
+        if not times or x - times[-1] > sep_s:
+            times.append(float(x))
+    return times
