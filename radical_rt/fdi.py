@@ -63,6 +63,7 @@ BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alar
 # outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
 CHECK_MAX_S = 2.0
 QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
+WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gated bank check
 
 
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
@@ -205,6 +206,7 @@ class FaultMonitor:
         self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
         self._next_check = -math.inf
         self._sum_seen = False  # a parity sum closed since the last bookkeeping
+        self._t_decided = -math.inf  # engine time of the running bank's last decision
         self.failed_by_fdi: set[int] = set()
         self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
         self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
@@ -288,10 +290,27 @@ class FaultMonitor:
         self.flagged_only.discard(int(gyro))
 
     def wake_time(self) -> float:
-        """Engine time from which :meth:`on_window` has work (−inf during an alarm or after a
-        parity sum): the engine's compiled fast path skips the hook before it
-        (radical_rt.fastpath)."""
-        return -math.inf if self.state == "alarm" or self._sum_seen else self._next_check
+        """Engine time from which :meth:`on_window` has work: the engine's compiled fast path
+        skips the hook before it (radical_rt.fastpath). −inf after a parity sum, or during an
+        alarm without a bank. While a bank runs, its decision changes only with a tracker sample
+        (:meth:`wake_on_tracker`) or at the times of :meth:`_bank_wake`."""
+        if self._sum_seen or (self.state == "alarm" and self.bank is None):
+            return -math.inf
+        return self._bank_wake() if self.state == "alarm" else self._next_check
+
+    def wake_on_tracker(self) -> bool:
+        """Whether :meth:`on_window` has work after every tracker sample (a bank is running)."""
+        return self.state == "alarm" and self.bank is not None
+
+    def _bank_wake(self) -> float:
+        """While a bank runs, the engine time from which a window without a new tracker sample
+        has work: the first window after the alarm's own (the decision is held there), the next
+        snapshot and the bank's timeout (a little early: a hook that finds nothing is harmless)."""
+        b = self.bank
+        if self._t_decided <= b.t_alarm:
+            return b.t_alarm
+        w = b.t_alarm + BANK_MAX_S - WAKE_EARLY_S
+        return min(w, self.snaps[-1].t + SNAPSHOT_PERIOD_S - WAKE_EARLY_S) if self.snaps else -math.inf
 
     def on_window(self, eng, t: float) -> None:
         """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
@@ -329,6 +348,7 @@ class FaultMonitor:
         if self.bank is not None:
             self.bank.advance(eng, self.gbuf, self.trk, t)
             verdict, gyro, margin = self.bank.decision(self.llr_threshold(eng))
+            self._t_decided = float(eng.t)
             if eng.t <= self.bank.t_alarm:
                 verdict = "wait"  # PARITY_ALARM is published for at least one window first
             if verdict == "isolate":
@@ -438,6 +458,7 @@ class FaultMonitor:
             self.alarm.update({k: v for k, v in rec.items() if k != "t_alarm"})
         if snap is not None:
             self.bank = self.bank_type(eng, snap, float(eng.t))
+            self._t_decided = -math.inf
             self.counts["banks"] += 1
 
     def _fault_size(self, eng, gyro: int, t_onset: float) -> dict[str, float]:

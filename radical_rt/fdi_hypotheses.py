@@ -149,9 +149,10 @@ class HypothesisBank:
     def _decide(self, llr_min: float) -> tuple[str, int | None, float]:
         if self.k == 0:
             return "wait", None, 0.0
-        order = np.argsort(-self.ll, kind="stable")
-        best, second = int(order[0]), int(order[1])
-        margin = float(self.ll[best] - self.ll[second])
+        ll = self.ll.tolist()  # best and runner-up, the first index on ties (a stable argsort)
+        best = max(range(len(ll)), key=ll.__getitem__)
+        second = max((h for h in range(len(ll)) if h != best), key=ll.__getitem__)
+        margin = float(ll[best] - ll[second])
         if margin < llr_min:
             return "wait", None, margin
         if self.nis[best] > chi2_isf(CONSISTENCY_P, 3 * self.k):
