@@ -525,6 +525,18 @@ class FaultMonitor:
         eng._refresh()
         self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
 
+    def compile_bank(self, eng) -> bool:
+        """Run a throw-away bank from the latest snapshot over the buffered samples, so that its
+        kernels are compiled (or loaded from the cache) before the first alarm (the node's
+        start-up warm-up). Changes nothing; False without a snapshot or tracker samples."""
+        if not self.snaps or not self.trk:
+            return False
+        bank = self.bank_type(eng, self.snaps[0], float(eng.t))
+        bank.advance(eng, self.gbuf, self.trk, float(eng.t))
+        bank.final_state(eng, self.gbuf, 0)
+        bank.decision(self.llr_threshold(eng))
+        return bank.k > 0
+
     # ------------------------------------------------------------------ outputs
     def detail(self) -> dict[str, Any]:
         """Plain-type state for the ``fault`` message detail and diagnostics."""
