@@ -147,3 +147,33 @@ def test_compiled_bank_matches_the_python_bank(name, tmp_path, monkeypatch):
     assert math.isfinite(e1.t) and e1.t == e2.t
     print(f"{name}: {n_samples} tracker samples; max relative ll {worst['ll']:.1e}, nis "
           f"{worst['nis']:.1e}, per-sample NIS {worst['nis_k']:.1e}; max |Δ llr| {worst['llr']:.1e}")
+
+
+def test_fast_path_hands_over_at_tracker_samples_only_while_a_bank_runs(tmp_path, monkeypatch):
+    """While a bank runs, the window hook runs after every tracker sample and at the bank's time
+    checks, not at the 10-Hz gyro window closes (docs/fdi.md §1); the decision times are those of
+    the reference path (tests/test_fastpath.py compares the outputs byte for byte)."""
+    fault, duration = SCENARIOS["stuck C"]
+    path = synth(fault_toml(fault, duration=duration), tmp_path / "fault.mcap")
+    calls = []
+    orig = FaultMonitor.on_window
+
+    def on_window(self, eng, t):
+        if self.bank is not None:
+            calls.append((float(eng.t), self.bank.k))
+        return orig(self, eng, t)
+
+    monkeypatch.setattr(FaultMonitor, "on_window", on_window)
+    sp = _run(path, HypothesisBank, monkeypatch)
+    iso = sp.engine.fdi.isolations[0]
+    t = np.array([c[0] for c in calls])
+    k = np.array([c[1] for c in calls])
+    span = iso["t_isolated"] - sp.engine.fdi.alarms[0]["t_alarm"]
+    live = iso["trackers"] - k[1]  # the first call caught up with the samples since the snapshot
+    windows = 10.0 * span + live  # gyro window closes (10 Hz) and tracker epochs
+    # after every tracker sample (the decision is checked at each), plus parity sums and the
+    # bank's time checks, far fewer than one per window close
+    assert k[0] == 0 and k[1] > 0 and np.all(np.diff(k[1:]) <= 1) and np.all(np.diff(k) >= 0)
+    assert live <= len(calls) <= live + 1.5 * span + 10, (len(calls), live, span)
+    assert len(calls) < 0.8 * windows
+    assert np.all(np.diff(t) >= 0.0)
