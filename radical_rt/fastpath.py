@@ -50,7 +50,7 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
-from .fdi import _append_rows
+from .fdi_bank import append_rows
 from .flags import Flag
 from .gyro_queue import predict_pending
 from .model import fold_correction, tracker_rows
@@ -269,7 +269,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
     before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
     samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
-    (radical_rt.fdi._SampleBuffer, room already made; its owner advances its end), as the
+    (radical_rt.fdi_history.SampleBuffer, room already made; its owner advances its end), as the
     reference path's on_gyro hook does before the engine runs. pred (9,): with pred[0] = 1 and
     pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
     sample-triggered telemetry from its final state (:func:`radical_rt.gyro_queue.predict_pending`
@@ -281,7 +281,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     io[5], io[6], io[7], io[8] = s_parity, s_last1, s_last2, s_mode
     cnt[0], cnt[1], cnt[2], cnt[3] = s_flags, 0, 0, -1
     if g_end >= 0:
-        _append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
+        append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
     while e < n_ev:

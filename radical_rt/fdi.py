@@ -32,13 +32,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import ud
-from ._jit import kernel
 from .conventions import DEG_PER_HR, SIRU_PERIOD_S
 from .fdi_detect import (
     CUSUM_SHIFT,
@@ -51,6 +49,7 @@ from .fdi_detect import (
     cusum_threshold,
     thresholds,
 )
+from .fdi_history import SampleBuffer, Snapshot
 from .fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
 from .flags import GYRO_FAILED, Flag
 from .model import parity_from_stats
@@ -68,116 +67,6 @@ WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gate
 
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
 
-# ----------------------------------------------------------------------------- buffers
-@kernel
-def _append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a, z):
-    """_SampleBuffer.append's copy of source rows a..z−1: rows end.. of the float block (t, dt,
-    var_extra, dθ), the int block (status) and the bool block (bridged)."""
-    n = dth.shape[1]
-    for r in range(a, z):
-        k = end + r - a
-        f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
-        for c in range(n):
-            f[k, 3 + c] = dth[r, c]
-        i_blk[k], b_blk[k] = status[r], bridged[r]
-
-
-class _SampleBuffer:
-    """Recent gyro samples as the engine received them, time order, copied into growing blocks
-    (one float block t, dt, var_extra, dθ; one int block status; one bool block bridged) with a
-    moving start: about 70 bytes per sample, so ``BUFFER_S`` of history costs a few MB per vehicle
-    (keeping the clock's batches themselves cost about 1.5 kB per sample, and the history grew
-    with the stream until a late compaction)."""
-
-    _COLS = 3  # t, dt, var_extra; then the n increments
-
-    def __init__(self) -> None:
-        self.clear()
-
-    def clear(self) -> None:
-        self._f = np.empty((0, 0))
-        self._i = np.empty(0, np.int64)
-        self._b = np.empty(0, np.bool_)
-        self.i0 = self.end = 0
-
-    def __len__(self) -> int:
-        return self.end - self.i0
-
-    def append(self, arrays, a: int = 0, z: int | None = None) -> None:
-        """Copy rows a..z−1 (default: all) of the sample arrays (t, dt, dθ, status, bridged,
-        var_extra)."""
-        t, dt, dth, status, bridged, var_extra = arrays
-        z = len(t) if z is None else z
-        m = z - a
-        if m <= 0:
-            return
-        self.reserve(m, dth.shape[1])
-        _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged,
-                     a, z)
-        self.end += m
-
-    def reserve(self, m: int, n: int) -> None:
-        """Room for m more samples of n gyros after ``end`` (the compiled release appends them
-        itself with :func:`_append_rows`, then advances ``end``)."""
-        if self._f.shape[1] != self._COLS + n or self.end + m > len(self._i):
-            self._make_room(m, n)
-
-    def _make_room(self, m: int, n: int) -> None:
-        """Move the kept samples to the front; grow (×2) if they and m more do not fit."""
-        keep = self.end - self.i0 if self._f.shape[1] == self._COLS + n else 0
-        cap = max(len(self._i), 1024)
-        while keep + m > cap // 2 and keep + m > 1024:
-            cap *= 2
-        if cap != len(self._i) or self._f.shape[1] != self._COLS + n:
-            f, i, b = np.empty((cap, self._COLS + n)), np.empty(cap, np.int64), np.empty(cap, np.bool_)
-        else:
-            f, i, b = self._f, self._i, self._b
-        if keep:
-            src = slice(self.i0, self.i0 + keep)
-            f[:keep], i[:keep], b[:keep] = self._f[src], self._i[src], self._b[src]
-        self._f, self._i, self._b = f, i, b
-        self.i0, self.end = 0, keep
-
-    def drop_before(self, t_min: float) -> None:
-        """Forget the samples with t < t_min."""
-        t = self._f[self.i0:self.end, 0] if self.end > self.i0 else None
-        if t is not None:
-            self.i0 += int(np.searchsorted(t, t_min, side="left"))
-
-    def span(self, t_after: float, t_upto: float):
-        """The samples with t_after < t ≤ t_upto, without a copy, as (f, status, bridged, a, z):
-        rows a..z−1 of the float block f (m, 3 + n) (t [s], dt [s], var_extra [rad²], dθ [rad]),
-        the int64 block of status bits and the bool block; None if there are none. Valid until
-        the next append or drop."""
-        if self.end == self.i0:
-            return None
-        t = self._f[self.i0:self.end, 0]
-        a = self.i0 + int(np.searchsorted(t, t_after, side="right"))
-        z = self.i0 + int(np.searchsorted(t, t_upto, side="right"))
-        if z <= a:
-            return None
-        return self._f, self._i, self._b, a, z
-
-    def blocks(self):
-        """(f, status, bridged, i0, end): the blocks of :meth:`span` and the rows in use."""
-        return self._f, self._i, self._b, self.i0, self.end
-
-
-@dataclass
-class Snapshot:
-    """Engine state at a window close (after the correction), for the bank and the rollback."""
-
-    t: float  # time of the last propagated sample
-    trk_seq: int  # last tracker sample already applied
-    gen: tuple  # (cold starts, warm starts, attitude inits): a change invalidates the snapshot
-    q: np.ndarray
-    omega: np.ndarray
-    xp: np.ndarray
-    U: np.ndarray
-    d: np.ndarray
-    N: np.ndarray
-
-
 # ----------------------------------------------------------------------------- the monitor
 class FaultMonitor:
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
@@ -190,7 +79,7 @@ class FaultMonitor:
     def __init__(self) -> None:
         self._th_key = None
         self.det: ParityDetector | None = None
-        self.gbuf = _SampleBuffer()
+        self.gbuf = SampleBuffer()
         self.trk: deque = deque()
         self.trk_seq = 0
         self.snaps: deque[Snapshot] = deque()
@@ -564,5 +453,5 @@ def _f(x: float) -> float | None:
 
 
 __all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",
-           "ParityDetector", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
+           "ParityDetector", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
            "cusum_threshold", "thresholds"]

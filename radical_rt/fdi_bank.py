@@ -33,8 +33,23 @@ from .rotation import quat_mul_into, rotvec_to_quat_into
 from .ud import cholesky_lower
 from .updates import timing_noise
 
-#: columns of the gyro history's float block (radical_rt.fdi's sample buffer): t, dt, var_extra, dθ
+#: columns of the gyro history's float block (radical_rt.fdi_history.SampleBuffer): t, dt, var_extra, dθ
 COL_T, COL_DT, COL_VAR, COL_DTH = 0, 1, 2, 3
+
+
+@kernel
+def append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a, z):
+    """The gyro history's append (radical_rt.fdi_history.SampleBuffer, and the compiled release
+    itself): source rows a..z−1 of t, dt [s], var_extra [rad²], dθ (m, n) [rad], status (int
+    bits), bridged (bool) to rows end.. of the float block f (columns COL_T, COL_DT, COL_VAR,
+    COL_DTH.., room already made), the int block i_blk and the bool block b_blk."""
+    n = dth.shape[1]
+    for r in range(a, z):
+        k = end + r - a
+        f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
+        for c in range(n):
+            f[k, 3 + c] = dth[r, c]
+        i_blk[k], b_blk[k] = status[r], bridged[r]
 
 
 @kernel
