@@ -4,8 +4,9 @@ Each hypothesis is an open-loop attitude propagation with the snapshot calibrati
 attitude filter on the buffered tracker samples whose considered states are every parameter of the
 snapshot (gyro calibration, ST2 misalignment φ2, tracker latency). The log-likelihoods of the
 tracker innovations decide. The arithmetic is in :mod:`radical_rt.fdi_bank`: one kernel call per
-run of gyro samples and one per tracker sample, for all hypotheses; this class keeps the stacked
-state, routes the monitor's buffers to the kernels and takes the decision.
+tracker sample for all hypotheses (the gyro samples up to its epoch, the covariance, the update);
+this class keeps the stacked state, routes the monitor's buffers to the kernels and takes the
+decision.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ class HypothesisBank:
 
     def propagate_to(self, eng, buf, t_end: float) -> None:
         """All hypotheses through the buffered gyro samples with t_last < t ≤ t_end (one call;
-        the covariance follows at the next tracker sample or :meth:`attitude_covariance`)."""
+        the covariance follows at the next tracker sample or :meth:`final_state`)."""
         f, st, br, i0, end = buf.blocks()
         if end > i0 and bank_propagate(f, st, br, i0, end, t_end, *self._cal(eng), *self._pw):
             self.t_last = float(self.tlast[0])

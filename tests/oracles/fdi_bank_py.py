@@ -1,7 +1,9 @@
 """Test oracle: the FDI hypothesis bank as it was written in Python before the bank was compiled
-(radical_rt/fdi.py, HypothesisBank, at commit 12a76bb), kept verbatim apart from the imports and
-the two method names (``propagate_to``, ``update_tracker``, public so that a test can trace every
-tracker sample). numpy solve/slogdet per hypothesis per tracker sample.
+(radical_rt/fdi.py, HypothesisBank, at commit 12a76bb), numpy solve/slogdet per hypothesis per
+tracker sample. Kept verbatim apart from: the imports; the gyro history's former ``take`` as the
+module function :func:`take`; public names for the two steps (``propagate_to``,
+``update_tracker``, so that a test can trace every tracker sample); and ``final_state``, through
+which the monitor's hand-over now reads the winner's state.
 
 It is not the product: tests/test_fdi_bank.py runs it side by side with the compiled bank
 (radical_rt.fdi_hypotheses.HypothesisBank, kernels in radical_rt.fdi_bank) and compares the
