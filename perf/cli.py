@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine": "perf.bench_engine",
-           "clock": "perf.bench_clock", "startup": "perf.bench_startup",
+           "clock": "perf.bench_clock", "fdi": "perf.bench_fdi_bank", "startup": "perf.bench_startup",
            "latency": "perf.bench_latency", "capacity": "perf.bench_capacity"}
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 

@@ -19,7 +19,8 @@ reference path would do something only Python does:
 * ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
   trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
   or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
-  ending). Python then runs :meth:`Engine.on_window` exactly as the reference path does.
+  ending), or, with io[10] set, after every tracker sample (an FDI hypothesis bank is running).
+  Python then runs :meth:`Engine.on_window` exactly as the reference path does.
 
 Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
 
@@ -30,10 +31,11 @@ costs one argument each instead of one per array when Python calls the kernel.
 parity_window, gyro_gap_s, parity_lag_s, st_stale_s, timing_consider_s, n_gyro, st_ref_stars,
 gate_st_nis, edit_enabled, φ2 state column, τ state column, φ2 index in xp, τ index in xp,
 st_min_stars.
-``io`` (float64[10]): [0] engine time t [s] (in/out), [1] locked_since [s] (in/out), [2] σ_t of
+``io`` (float64[11]): [0] engine time t [s] (in/out), [1] locked_since [s] (in/out), [2] σ_t of
 the time line [s], [3] wake_t, [4] wake_e [s], [5] epoch of the oldest queued parity sum (inf if
 none), [6], [7] last valid ST1, ST2 epoch [s] (−inf if none), [8] the engine's mode (MODE_*;
-the window hook has work when update_mode would change it), [9] NIS of the tracker update (out).
+the window hook has work when update_mode would change it), [9] NIS of the tracker update (out),
+[10] 1.0: the window hook has work after every tracker sample (set by the caller, not loaded).
 ``cnt`` (int64[8]): [0] flags (in/out), [1] samples propagated (+=), [2] undetermined windows
 (+=), [3] PROP_MASKED of the last propagate call (the caller sets −1), [4] kernel status (out), [5]
 1 if the tracker sample was edited (out), [6] 1 if a tracker update ran (out), [7] 1 if it
@@ -48,7 +50,7 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
-from .fdi import _append_rows
+from .fdi_bank import append_rows
 from .flags import Flag
 from .gyro_queue import predict_pending
 from .model import fold_correction, tracker_rows
@@ -219,7 +221,7 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     cnt[0] = (cnt[0] & ~bit) | (bit if edited else 0)
     if _fold(E) > 0:
         return R_NUMERIC_FOLD
-    if _window_due(E, cfg, io, cnt, t_epoch):
+    if io[10] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
         return R_ON_WINDOW
     return R_DONE
 
@@ -267,7 +269,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
     before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
     samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
-    (radical_rt.fdi._SampleBuffer, room already made; its owner advances its end), as the
+    (radical_rt.fdi_history.SampleBuffer, room already made; its owner advances its end), as the
     reference path's on_gyro hook does before the engine runs. pred (9,): with pred[0] = 1 and
     pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
     sample-triggered telemetry from its final state (:func:`radical_rt.gyro_queue.predict_pending`
@@ -279,7 +281,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     io[5], io[6], io[7], io[8] = s_parity, s_last1, s_last2, s_mode
     cnt[0], cnt[1], cnt[2], cnt[3] = s_flags, 0, 0, -1
     if g_end >= 0:
-        _append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
+        append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
     while e < n_ev:

@@ -172,9 +172,12 @@ class FastRelease:
         """The scalar state the fast path loads into its io arrays at the start of a call (the
         last ten arguments of :func:`fastpath.fast_release`; :meth:`release` takes it back after
         each call): t, locked_since, σ of the time line, wake_t, wake_e, epoch of the oldest
-        queued parity sum, last valid epochs of ST1 and ST2, mode code, flags."""
+        queued parity sum, last valid epochs of ST1 and ST2, mode code, flags. It also sets
+        io[10] (the window hook after every tracker sample) from the FDI."""
         last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
         wake_e = math.inf if fdi is None else fdi.wake_time()
+        # io[10]: the FDI's bank wants the window hook after every tracker sample
+        self._fast_io[10] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
         if src is None:
             wake_t = math.inf
         else:  # the listener's (the stream's packets and flags)
@@ -192,7 +195,7 @@ class FastRelease:
             si.gyro_gap_s, si.parity_lag_s, si.st_stale_s, si.timing_consider_s, self.n_gyro,
             si.st_ref_stars, si.gate_st_nis, 1.0 if si.edit_enabled else 0.0, self._phi_col,
             self._lat_col, self._phi_col - 3, self._lat_col - 3, si.st_min_stars], dtype=np.float64)
-        self._fast_io = np.zeros(10)
+        self._fast_io = np.zeros(11)
         self._fast_cnt = np.zeros(8, np.int64)
 
     # callable() → (wake_t, wake_e) of the listener (the stream's packets): the event time and

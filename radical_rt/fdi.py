@@ -32,23 +32,29 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from statistics import NormalDist
 from typing import Any
 
 import numpy as np
 
 from . import ud
-from ._jit import kernel
 from .conventions import DEG_PER_HR, SIRU_PERIOD_S
+from .fdi_detect import (
+    CUSUM_SHIFT,
+    PERSIST_M,
+    ParityDetector,
+    Thresholds,
+    chi2_1_isf,
+    chi2_isf,
+    cusum_arl0,
+    cusum_threshold,
+    thresholds,
+)
+from .fdi_history import SampleBuffer, Snapshot
+from .fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
 from .flags import GYRO_FAILED, Flag
-from .model import apply_body_rotation, parity_from_stats, refresh_axes, tracker_residual
-from .propagate import propagate_window
-from .rotation import quat_conj, quat_mul, rotvec_to_quat
+from .model import parity_from_stats
 
-# Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §4).
-PERSIST_M = 3  # consecutive χ² exceedances of the persistence test
-CUSUM_SHIFT = 1.0  # design mean shift of the CUSUM, in units of σ (reference value k = shift/2)
+# Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
 SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
 BUFFER_S = 600.0  # gyro and tracker history kept for the bank
 ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
@@ -56,423 +62,24 @@ BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alar
 # outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
 CHECK_MAX_S = 2.0
 QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
-NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
-CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
+WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gated bank check
 
 
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
-
-# ----------------------------------------------------------------------------- thresholds
-_NORMAL = NormalDist()
-
-
-def chi2_1_isf(a: float) -> float:
-    """T with P(χ²₁ > T) = a (exact: χ²₁ = Z², so √T is the two-sided normal quantile)."""
-    return _NORMAL.inv_cdf(0.5 * a) ** 2
-
-
-def chi2_isf(p: float, dof: int) -> float:
-    """T with P(χ²_dof > T) ≈ p (Wilson–Hilferty; at p = 1e-4 it is 3.5 % high for dof = 3 and
-    within 0.4 % for dof ≥ 30; the bank uses dof = 3 × tracker samples)."""
-    z = -_NORMAL.inv_cdf(p)
-    c = 2.0 / (9.0 * dof)
-    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
-
-
-def cusum_arl0(h: float, k: float) -> float:
-    """Siegmund's approximation of the average run length (in samples) of the one-sided CUSUM
-    S ← max(0, S + ν − k), alarm S ≥ h, for ν ~ N(0, 1):  [e^{2kb} − 2kb − 1]/(2k²), b = h + 1.166."""
-    b = h + 1.166
-    x = 2.0 * k * b
-    return (math.expm1(x) - x) / (2.0 * k * k)
-
-
-def cusum_threshold(arl0: float, k: float) -> float:
-    """Smallest h ≥ 0 with :func:`cusum_arl0` (h, k) ≥ arl0 (bisection)."""
-    lo, hi = 0.0, 1.0
-    while cusum_arl0(hi, k) < arl0:
-        hi *= 2.0
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        if cusum_arl0(mid, k) < arl0:
-            lo = mid
-        else:
-            hi = mid
-    return hi
-
-
-@dataclass(frozen=True)
-class Thresholds:
-    """Detection thresholds derived from a false-alarm rate (docs/fdi.md §2)."""
-
-    rate_per_hr: float  # design false-alarm rate of the whole detector [1/h]
-    sums_per_hr: float  # parity sums per hour
-    t_inst: float  # ν² above this: instantaneous alarm
-    t_persist: float  # ν² above this PERSIST_M times in a row: persistence alarm
-    cusum_k: float  # CUSUM reference value [σ]
-    cusum_h: float  # CUSUM threshold [σ]
-
-
-def thresholds(rate_per_hr: float, sums_per_hr: float) -> Thresholds:
-    """Split the false-alarm budget equally over the instantaneous test, the persistence test and
-    the two one-sided CUSUMs, and invert each test's false-alarm probability:
-
-    * instantaneous: n_h·P(χ²₁ > T) = λ/3;
-    * persistence: n_h·α^m = λ/3 with α = P(χ²₁ > T_p) (sums nearly independent);
-    * CUSUM: each side's ARL0 (Siegmund) = 6·n_h/λ sums.
-    """
-    lam = max(float(rate_per_hr), 1e-300)
-    a_inst = min(lam / 3.0 / sums_per_hr, 0.5)
-    a_pers = min((lam / 3.0 / sums_per_hr) ** (1.0 / PERSIST_M), 0.5)
-    k = 0.5 * CUSUM_SHIFT
-    return Thresholds(lam, sums_per_hr, chi2_1_isf(a_inst), chi2_1_isf(a_pers),
-                      k, cusum_threshold(6.0 * sums_per_hr / lam, k))
-
-
-# ----------------------------------------------------------------------------- detection
-class ParityDetector:
-    """The three parity tests on the normalized innovations ν of consecutive sums.
-
-    :meth:`update` returns ``(test, t_onset)`` when a test fires (``"instant"``, ``"persistence"``
-    or ``"cusum"``; t_onset = start of the first sum of the evidence), else None.
-    """
-
-    def __init__(self, th: Thresholds, guard_ratio: float) -> None:
-        self.th, self.guard_ratio = th, guard_ratio
-        self.reset()
-
-    def reset(self) -> None:
-        self.s_pos = self.s_neg = 0.0
-        self.t_pos = self.t_neg = math.nan
-        self.run, self.t_run = 0, math.nan
-        self.quiet = 0
-        self.guarded = False
-
-    def update(self, nu: float, rho: float, t0: float) -> tuple[str, float] | None:
-        th = self.th
-        nu2 = nu * nu
-        self.guarded = rho > self.guard_ratio
-        if self.guarded:
-            # Calibration-dominated innovation variance: the sequential tests are held, and only
-            # evidence that is overwhelming against the calibration part too raises an alarm.
-            self.s_pos = self.s_neg = 0.0
-            self.run = 0
-            self.quiet = 0
-            return ("instant", t0) if nu2 > th.t_inst * rho / self.guard_ratio else None
-        hit = None
-        if nu2 > th.t_inst:
-            hit = ("instant", t0)
-        if nu2 > th.t_persist:
-            if self.run == 0:
-                self.t_run = t0
-            self.run += 1
-        else:
-            self.run = 0
-        if hit is None and self.run >= PERSIST_M:
-            hit = ("persistence", self.t_run)
-        s = max(0.0, self.s_pos + nu - th.cusum_k)
-        if self.s_pos == 0.0 and s > 0.0:
-            self.t_pos = t0
-        self.s_pos = s
-        s = max(0.0, self.s_neg - nu - th.cusum_k)
-        if self.s_neg == 0.0 and s > 0.0:
-            self.t_neg = t0
-        self.s_neg = s
-        if hit is None and self.s_pos >= th.cusum_h:
-            hit = ("cusum", self.t_pos)
-        if hit is None and self.s_neg >= th.cusum_h:
-            hit = ("cusum", self.t_neg)
-        calm = nu2 <= th.t_persist and max(self.s_pos, self.s_neg) < 0.5 * th.cusum_h
-        self.quiet = self.quiet + 1 if calm else 0
-        return hit
-
-
-# ----------------------------------------------------------------------------- buffers
-@kernel
-def _append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a, z):
-    """_SampleBuffer.append's copy of source rows a..z−1: rows end.. of the float block (t, dt,
-    var_extra, dθ), the int block (status) and the bool block (bridged)."""
-    n = dth.shape[1]
-    for r in range(a, z):
-        k = end + r - a
-        f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
-        for c in range(n):
-            f[k, 3 + c] = dth[r, c]
-        i_blk[k], b_blk[k] = status[r], bridged[r]
-
-
-class _SampleBuffer:
-    """Recent gyro samples as the engine received them, time order, copied into growing blocks
-    (one float block t, dt, var_extra, dθ; one int block status; one bool block bridged) with a
-    moving start: about 70 bytes per sample, so ``BUFFER_S`` of history costs a few MB per vehicle
-    (keeping the clock's batches themselves cost about 1.5 kB per sample, and the history grew
-    with the stream until a late compaction)."""
-
-    _COLS = 3  # t, dt, var_extra; then the n increments
-
-    def __init__(self) -> None:
-        self.clear()
-
-    def clear(self) -> None:
-        self._f = np.empty((0, 0))
-        self._i = np.empty(0, np.int64)
-        self._b = np.empty(0, np.bool_)
-        self.i0 = self.end = 0
-
-    def __len__(self) -> int:
-        return self.end - self.i0
-
-    def append(self, arrays, a: int = 0, z: int | None = None) -> None:
-        """Copy rows a..z−1 (default: all) of the sample arrays (t, dt, dθ, status, bridged,
-        var_extra)."""
-        t, dt, dth, status, bridged, var_extra = arrays
-        z = len(t) if z is None else z
-        m = z - a
-        if m <= 0:
-            return
-        self.reserve(m, dth.shape[1])
-        _append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged,
-                     a, z)
-        self.end += m
-
-    def reserve(self, m: int, n: int) -> None:
-        """Room for m more samples of n gyros after ``end`` (the compiled release appends them
-        itself with :func:`_append_rows`, then advances ``end``)."""
-        if self._f.shape[1] != self._COLS + n or self.end + m > len(self._i):
-            self._make_room(m, n)
-
-    def _make_room(self, m: int, n: int) -> None:
-        """Move the kept samples to the front; grow (×2) if they and m more do not fit."""
-        keep = self.end - self.i0 if self._f.shape[1] == self._COLS + n else 0
-        cap = max(len(self._i), 1024)
-        while keep + m > cap // 2 and keep + m > 1024:
-            cap *= 2
-        if cap != len(self._i) or self._f.shape[1] != self._COLS + n:
-            f, i, b = np.empty((cap, self._COLS + n)), np.empty(cap, np.int64), np.empty(cap, np.bool_)
-        else:
-            f, i, b = self._f, self._i, self._b
-        if keep:
-            src = slice(self.i0, self.i0 + keep)
-            f[:keep], i[:keep], b[:keep] = self._f[src], self._i[src], self._b[src]
-        self._f, self._i, self._b = f, i, b
-        self.i0, self.end = 0, keep
-
-    def drop_before(self, t_min: float) -> None:
-        """Forget the samples with t < t_min."""
-        t = self._f[self.i0:self.end, 0] if self.end > self.i0 else None
-        if t is not None:
-            self.i0 += int(np.searchsorted(t, t_min, side="left"))
-
-    def take(self, t_after: float, t_upto: float):
-        """Copies of the samples with t_after < t ≤ t_upto as (t, dt, dθ, status, bridged,
-        var_extra), or None. The arrays are column views of one float and one int block, the
-        memory layout of the clock's batches, so the propagation kernel runs the engine's compiled
-        specialization."""
-        if self.end == self.i0:
-            return None
-        t = self._f[self.i0:self.end, 0]
-        a = self.i0 + int(np.searchsorted(t, t_after, side="right"))
-        z = self.i0 + int(np.searchsorted(t, t_upto, side="right"))
-        if z <= a:
-            return None
-        src = self._f[a:z]
-        fb = np.empty_like(src)
-        fb[...] = src
-        ib = np.empty((z - a, 2), np.int64)
-        ib[:, 0] = self._i[a:z]
-        bb = self._b[a:z].copy()
-        return fb[:, 0], fb[:, 1], fb[:, self._COLS:], ib[:, 0], bb, fb[:, 2]
-
-
-@dataclass
-class Snapshot:
-    """Engine state at a window close (after the correction), for the bank and the rollback."""
-
-    t: float  # time of the last propagated sample
-    trk_seq: int  # last tracker sample already applied
-    gen: tuple  # (cold starts, warm starts, attitude inits): a change invalidates the snapshot
-    q: np.ndarray
-    omega: np.ndarray
-    xp: np.ndarray
-    U: np.ndarray
-    d: np.ndarray
-    N: np.ndarray
-
-
-# ----------------------------------------------------------------------------- isolation bank
-class HypothesisBank:
-    """H0 (all gyros) and H_i (gyro i left out): open-loop attitude propagation with the snapshot
-    calibration and a Schmidt attitude filter on the tracker samples (considered: every parameter
-    state of the snapshot). Log-likelihoods of the tracker innovations decide (docs/fdi.md §3)."""
-
-    def __init__(self, eng, snap: Snapshot, t_alarm: float) -> None:
-        n, npar = eng.n_gyro, eng.ns - 3
-        self.snap, self.t_alarm = snap, t_alarm
-        self.gyros: list[int | None] = [None] + list(range(n))
-        self.masks = [np.zeros(n, np.bool_)] + [np.eye(n, dtype=np.bool_)[i] for i in range(n)]
-        nh = len(self.gyros)
-        self.xp = snap.xp.copy()
-        self.A, self.Minv, self.Gp = np.zeros((3, n)), np.eye(3), np.zeros((3, n))
-        N = snap.N.copy()
-        refresh_axes(self.xp, eng.geo.W, eng.geo.U, eng.geo.V, snap.N.copy(), self.A, self.Minv,
-                     self.Gp, N)
-        self.N_none = np.zeros((n, 0))
-        P = np.empty((eng.ns, eng.ns))
-        ud.ud_to_cov(snap.U, snap.d, P)
-        self.Ppp = P[3:, 3:].copy()
-        self.Ptt = [P[:3, :3].copy() for _ in range(nh)]
-        self.Ptp = [P[:3, 3:].copy() for _ in range(nh)]
-        self.q = [snap.q.copy() for _ in range(nh)]
-        self.omega = [snap.omega.copy() for _ in range(nh)]
-        self.ll = np.zeros(nh)  # log-likelihood (robust, up to a common constant)
-        self.nis = np.zeros(nh)  # capped NIS sums
-        self.k = 0  # tracker samples processed
-        self.t_last = snap.t  # last gyro sample propagated
-        self.trk_seq = snap.trk_seq
-        self.undetermined = np.zeros(nh, np.int64)
-        lay = eng.layout
-        self.phi_cols = slice(lay["phi2"].start - 3, lay["phi2"].stop - 3)
-        self.lat_col = lay["lat"].start - 3 if "lat" in lay else None
-        self.phi = self.xp[self.phi_cols].copy()
-        self.tau = float(self.xp[self.lat_col]) if self.lat_col is not None else 0.0
-        # propagate_window work arrays
-        self.Phi_aa, self.Phi_ap, self.Q_aa = np.eye(3), np.zeros((3, npar)), np.zeros((3, 3))
-        self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))
-        self.acc_i, self.acc_f, self.th_acc = np.zeros(4, np.int64), np.zeros(3), np.zeros(3)
-        self.r, self.H_att, self.H_phi = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
-        self.w4, self.dq = np.empty(4), np.empty(4)
-
-    # ------------------------------------------------------------------ propagation
-    def _propagate(self, eng, buf: _SampleBuffer, t_end: float) -> None:
-        data = buf.take(self.t_last, t_end)
-        if data is None:
-            return
-        t, dt, dth, status, bridged, var_extra = data
-        a, b = 0, len(t)
-        arw = eng.si.arw_var_per_s
-        for h, mask in enumerate(self.masks):
-            self.Phi_aa[:, :] = np.eye(3)
-            self.Phi_ap[:, :] = 0.0
-            self.Q_aa[:, :] = 0.0
-            self.acc_i[:] = 0
-            self.acc_f[:] = 0.0
-            self.th_acc[:] = 0.0
-            k = a
-            while k < b:
-                k, pflags = propagate_window(
-                    dth, dt, status, bridged, var_extra, k, mask, self.xp,
-                    self.q[h], self.A, eng.geo.W, eng.geo.U, eng.geo.V, self.Minv, self.Gp,
-                    self.N_none, self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t,
-                    self.acc_i, self.acc_f, self.th_acc, b - a + 1, arw, self.omega[h])
-                if pflags & 2:
-                    self.undetermined[h] += 1
-            F, G = self.Phi_aa, self.Phi_ap
-            Ptt, Ptp = self.Ptt[h], self.Ptp[h]
-            FPtp = F @ Ptp
-            GPpp = G @ self.Ppp
-            Ptt_new = F @ Ptt @ F.T + FPtp @ G.T + G @ FPtp.T + GPpp @ G.T + self.Q_aa
-            self.Ptt[h] = 0.5 * (Ptt_new + Ptt_new.T)
-            self.Ptp[h] = FPtp + GPpp
-        self.t_last = float(t[b - 1])
-
-    # ------------------------------------------------------------------ tracker update
-    def _tracker(self, eng, j: int, t_epoch: float, q_meas: np.ndarray, n_stars: int) -> None:
-        if j == 1:
-            R_nom, use_phi = eng.geo.R_st1_from_body, False
-        else:
-            R_nom, use_phi = eng.geo.R_st2_from_body_nom, True
-        sig = np.asarray(eng.si.st_sigma) * math.sqrt(eng.si.st_ref_stars / max(n_stars, 1))
-        sig_t = eng.timing_sigma()
-        gate = NIS_CAP
-        for h in range(len(self.masks)):
-            q_ep = self.q[h].copy()
-            tau = t_epoch - self.tau - self.t_last
-            if tau != 0.0:
-                apply_body_rotation(q_ep, self.omega[h] * tau, self.w4, self.dq)
-            tracker_residual(q_meas, q_ep, R_nom, self.phi, use_phi, self.r, self.H_att,
-                             self.H_phi)
-            Ha = self.H_att
-            Hp = np.zeros((3, self.Ppp.shape[0]))
-            if use_phi:
-                Hp[:, self.phi_cols] = self.H_phi
-            if self.lat_col is not None:
-                Hp[:, self.lat_col] = -(Ha @ self.omega[h])
-            v = R_nom @ self.omega[h]
-            R = np.diag(sig * sig) + sig_t * sig_t * np.outer(v, v)
-            Ptt, Ptp = self.Ptt[h], self.Ptp[h]
-            PHt = Ptt @ Ha.T + Ptp @ Hp.T  # cov(δθ, Hx)
-            HpPpp = Hp @ self.Ppp
-            S = Ha @ PHt + Hp @ (Ptp.T @ Ha.T) + HpPpp @ Hp.T + R
-            S = 0.5 * (S + S.T)
-            try:
-                Sinv_r = np.linalg.solve(S, self.r)
-                sign, logdet = np.linalg.slogdet(S)
-            except np.linalg.LinAlgError:
-                self.ll[h] = -math.inf
-                continue
-            nis = float(self.r @ Sinv_r)
-            self.nis[h] += min(nis, gate)
-            self.ll[h] -= 0.5 * (min(nis, gate) + logdet)
-            if not nis <= gate:
-                continue  # edited like the engine would: no correction
-            K = np.linalg.solve(S, PHt.T).T  # (3, 3) gain of the attitude states
-            dth = K @ self.r
-            q = quat_mul(quat_conj(rotvec_to_quat(dth)), self.q[h])
-            self.q[h] = q / (np.linalg.norm(q) * (1.0 if q[3] >= 0 else -1.0))
-            Ptt_new = Ptt - K @ PHt.T
-            self.Ptt[h] = 0.5 * (Ptt_new + Ptt_new.T)
-            self.Ptp[h] = Ptp - K @ (Ha @ Ptp + HpPpp)
-        self.k += 1
-
-    # ------------------------------------------------------------------ driver and decision
-    def advance(self, eng, gbuf: _SampleBuffer, trk: deque, t_upto: float) -> None:
-        """Process the buffered trackers (seq > last) with epoch ≤ t_upto and the gyro samples up
-        to the engine's last propagated sample, in the engine's order."""
-        # sequence numbers are consecutive in the deque: index the first one not yet processed
-        k = max(0, self.trk_seq + 1 - trk[0][0]) if trk else 0
-        while k < len(trk):
-            seq, epoch, j, q_meas, n_stars = trk[k]
-            k += 1
-            if epoch > t_upto:
-                break
-            self._propagate(eng, gbuf, epoch)
-            self._tracker(eng, j, epoch, q_meas, n_stars)
-            self.trk_seq = seq
-        self._propagate(eng, gbuf, eng.t)
-
-    def decision(self, llr_min: float) -> tuple[str, int | None, float]:
-        """("isolate", gyro, margin), ("none", None, margin) when H0 wins, or ("wait", …)."""
-        if self.k == 0:
-            return "wait", None, 0.0
-        order = np.argsort(-self.ll, kind="stable")
-        best, second = int(order[0]), int(order[1])
-        margin = float(self.ll[best] - self.ll[second])
-        if margin < llr_min:
-            return "wait", None, margin
-        if self.nis[best] > chi2_isf(CONSISTENCY_P, 3 * self.k):
-            return "wait", None, margin  # even the best hypothesis does not explain the trackers
-        gyro = self.gyros[best]
-        return ("none" if gyro is None else "isolate"), gyro, margin
-
-    def summary(self) -> dict[str, Any]:
-        best = float(np.max(self.ll)) if self.k else 0.0
-        return {"t_start": self.snap.t, "trackers": self.k,
-                "llr": {("all" if g is None else f"ex{g}"): float(self.ll[h] - best)
-                        for h, g in enumerate(self.gyros)},
-                "nis_mean": {("all" if g is None else f"ex{g}"): float(self.nis[h] / max(self.k, 1))
-                             for h, g in enumerate(self.gyros)},
-                "undetermined": [int(x) for x in self.undetermined]}
-
 
 # ----------------------------------------------------------------------------- the monitor
 class FaultMonitor:
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
     (``fdi_*``, :mod:`radical_rt.params`); defaults apply when a name is missing."""
 
+    #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/test_fdi_bank.py and
+    #: perf/bench_fdi_bank.py put the Python oracle of tests/oracles here)
+    bank_type = HypothesisBank
+
     def __init__(self) -> None:
         self._th_key = None
         self.det: ParityDetector | None = None
-        self.gbuf = _SampleBuffer()
+        self.gbuf = SampleBuffer()
         self.trk: deque = deque()
         self.trk_seq = 0
         self.snaps: deque[Snapshot] = deque()
@@ -488,6 +95,7 @@ class FaultMonitor:
         self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
         self._next_check = -math.inf
         self._sum_seen = False  # a parity sum closed since the last bookkeeping
+        self._t_decided = -math.inf  # engine time of the running bank's last decision
         self.failed_by_fdi: set[int] = set()
         self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
         self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
@@ -571,10 +179,27 @@ class FaultMonitor:
         self.flagged_only.discard(int(gyro))
 
     def wake_time(self) -> float:
-        """Engine time from which :meth:`on_window` has work (−inf during an alarm or after a
-        parity sum): the engine's compiled fast path skips the hook before it
-        (radical_rt.fastpath)."""
-        return -math.inf if self.state == "alarm" or self._sum_seen else self._next_check
+        """Engine time from which :meth:`on_window` has work: the engine's compiled fast path
+        skips the hook before it (radical_rt.fastpath). −inf after a parity sum, or during an
+        alarm without a bank. While a bank runs, its decision changes only with a tracker sample
+        (:meth:`wake_on_tracker`) or at the times of :meth:`_bank_wake`."""
+        if self._sum_seen or (self.state == "alarm" and self.bank is None):
+            return -math.inf
+        return self._bank_wake() if self.state == "alarm" else self._next_check
+
+    def wake_on_tracker(self) -> bool:
+        """Whether :meth:`on_window` has work after every tracker sample (a bank is running)."""
+        return self.state == "alarm" and self.bank is not None
+
+    def _bank_wake(self) -> float:
+        """While a bank runs, the engine time from which a window without a new tracker sample
+        has work: the first window after the alarm's own (the decision is held there), the next
+        snapshot and the bank's timeout (a little early: a hook that finds nothing is harmless)."""
+        b = self.bank
+        if self._t_decided <= b.t_alarm:
+            return b.t_alarm
+        w = b.t_alarm + BANK_MAX_S - WAKE_EARLY_S
+        return min(w, self.snaps[-1].t + SNAPSHOT_PERIOD_S - WAKE_EARLY_S) if self.snaps else -math.inf
 
     def on_window(self, eng, t: float) -> None:
         """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
@@ -612,6 +237,7 @@ class FaultMonitor:
         if self.bank is not None:
             self.bank.advance(eng, self.gbuf, self.trk, t)
             verdict, gyro, margin = self.bank.decision(self.llr_threshold(eng))
+            self._t_decided = float(eng.t)
             if eng.t <= self.bank.t_alarm:
                 verdict = "wait"  # PARITY_ALARM is published for at least one window first
             if verdict == "isolate":
@@ -720,7 +346,8 @@ class FaultMonitor:
         else:  # a new trigger during an alarm whose bank ended: a fresh bank, same alarm
             self.alarm.update({k: v for k, v in rec.items() if k != "t_alarm"})
         if snap is not None:
-            self.bank = HypothesisBank(eng, snap, float(eng.t))
+            self.bank = self.bank_type(eng, snap, float(eng.t))
+            self._t_decided = -math.inf
             self.counts["banks"] += 1
 
     def _fault_size(self, eng, gyro: int, t_onset: float) -> dict[str, float]:
@@ -764,17 +391,18 @@ class FaultMonitor:
         eng.excluded[gyro] = True
         ns = eng.ns
         P = np.empty((ns, ns))
-        P[:3, :3] = bank.Ptt[h]
-        P[:3, 3:] = bank.Ptp[h]
-        P[3:, :3] = bank.Ptp[h].T
+        q, omega, Ptt, Ptp = bank.final_state(eng, self.gbuf, h)
+        P[:3, :3] = Ptt
+        P[:3, 3:] = Ptp
+        P[3:, :3] = Ptp.T
         P[3:, 3:] = bank.Ppp
         U, d = np.eye(ns), np.ones(ns)
         if ud.factor_ud(P, U, d) == 0 and np.all(d > 0):
             eng.U[:, :] = U
             eng.d[:] = d
             eng.xp[:] = bank.xp
-            eng.q[:] = bank.q[h]
-            eng.omega[:] = bank.omega[h]
+            eng.q[:] = q
+            eng.omega[:] = omega
             dt = max(eng.t - bank.snap.t, 0.0)
             eng._check(ud.add_diagonal_noise(eng.U, eng.d, eng.param_idx,
                                              eng.q_params * dt, eng.ws.a))
@@ -785,6 +413,18 @@ class FaultMonitor:
         eng._reset_parity()
         eng._refresh()
         self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
+
+    def compile_bank(self, eng) -> bool:
+        """Run a throw-away bank from the latest snapshot over the buffered samples, so that its
+        kernels are compiled (or loaded from the cache) before the first alarm (the node's
+        start-up warm-up). Changes nothing; False without a snapshot or tracker samples."""
+        if not self.snaps or not self.trk:
+            return False
+        bank = self.bank_type(eng, self.snaps[0], float(eng.t))
+        bank.advance(eng, self.gbuf, self.trk, float(eng.t))
+        bank.final_state(eng, self.gbuf, 0)
+        bank.decision(self.llr_threshold(eng))
+        return bank.k > 0
 
     # ------------------------------------------------------------------ outputs
     def detail(self) -> dict[str, Any]:
@@ -812,5 +452,6 @@ def _f(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-__all__ = ["FaultMonitor", "HypothesisBank", "ParityDetector", "Thresholds", "chi2_1_isf",
-           "chi2_isf", "cusum_arl0", "cusum_threshold", "thresholds"]
+__all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",
+           "ParityDetector", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
+           "cusum_threshold", "thresholds"]

@@ -1,0 +1,211 @@
+"""Cost of the FDI hypothesis bank: a run with the bank active against a nominal run.
+
+Command::
+
+    python -m perf.bench_fdi_bank [--profile smoke|quick|full] [--out DIR]   # DIR/fdi_bank_<profile>.json
+
+Workload (deterministic, seeded, built before any timing): the 2006216 scenario, seed 1, cold start,
+and the same archive with gyro D's output zero from 40 s (``quick``, ``full``: 290 s; the bank runs
+from the alarm at 42.7 s to the isolation at 275.1 s, about 4700 tracker samples) or gyro B's bias
+stepping by 5 deg/hr at 120 s (``smoke``: 160 s). Both archives are identical before the fault.
+
+Each repetition feeds both archives through the batch shell's stream processor
+(:func:`radical_rt.batch.make_processor`, what ``radical process`` runs), message by message, and
+reads the wall clock after every message. Columns:
+
+* ``bank active [ms per s]``: wall time spent on the messages between the alarm and the isolation
+  (bus time) per second of stream, the same interval of the nominal archive for the nominal row;
+* ``× nominal``: that figure over the nominal run's (the issue's target: at most 1.5);
+* ``bank [µs per tracker sample]``: time inside ``HypothesisBank.advance`` per tracker sample it
+  processed (all hypotheses; gyro propagation included);
+* rows: ``nominal``; ``compiled bank`` (radical_rt.fdi_hypotheses, the product); ``no-op bank``
+  (a bank that never advances nor decides: the cost of the alarm state itself, i.e. the engine
+  handing over to Python at every window close); ``Python bank`` (the oracle of
+  tests/oracles/fdi_bank_py.py, the implementation before the bank was compiled; one repetition).
+* ``radical process [s]``: the whole run with :func:`radical_rt.batch.process` (output archive
+  written), nominal and fault archive, and their ratio.
+
+The medians over the repetitions are reported; the rows of one repetition run back to back, so
+the ratios survive a busy machine better than the absolute figures. JIT compilation is not
+timed: one untimed run of each kind comes first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PROFILES = {  # name → (fault, duration [s], repetitions)
+    "smoke": ({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0}, 160.0, 1),
+    "quick": ({"kind": "zero", "gyro": 3, "start_s": 40.0}, 290.0, 3),
+    "full": ({"kind": "zero", "gyro": 3, "start_s": 40.0}, 290.0, 7),
+}
+INPUTS = ("/siru", "/st1", "/st2", "/temp")
+
+
+def _bank_types() -> dict[str, Any]:
+    """name → bank class, each timing its advance (seconds and tracker samples, class counters)."""
+    from radical_rt.fdi_hypotheses import HypothesisBank
+
+    def timed(base):
+        class Timed(base):
+            spent, samples = 0.0, 0
+
+            def advance(self, eng, gbuf, trk, t_upto):
+                t0, k0 = time.perf_counter(), self.k
+                super().advance(eng, gbuf, trk, t_upto)
+                cls = type(self)
+                cls.spent += time.perf_counter() - t0
+                cls.samples += self.k - k0
+        return Timed
+
+    class NoOpBank(HypothesisBank):
+        def advance(self, eng, gbuf, trk, t_upto):
+            pass
+
+        def decision(self, llr_min):
+            return "wait", None, 0.0
+
+    out = {"compiled bank": timed(HypothesisBank), "no-op bank": NoOpBank}
+    try:
+        from tests.oracles.fdi_bank_py import PythonHypothesisBank
+        out["Python bank"] = timed(PythonHypothesisBank)
+    except ImportError:  # installed without the tests
+        pass
+    return out
+
+
+def _messages(path: Path) -> list[tuple[str, int, bytes]]:
+    from replayer.archive import ArchiveReader
+    with ArchiveReader(str(path)) as r:
+        return list(r.iter_raw(topics=list(INPUTS)))
+
+
+def _feed(msgs, bank_type) -> tuple[Any, np.ndarray, np.ndarray]:
+    """(stream processor, bus time [s] and cumulative wall time [s] after each message)."""
+    from radical_rt.batch import make_processor
+    from radical_rt.fdi import FaultMonitor
+    saved = FaultMonitor.bank_type
+    FaultMonitor.bank_type = bank_type
+    try:
+        sp = make_processor()
+        feed = sp.feed
+        t_bus, wall = np.empty(len(msgs)), np.empty(len(msgs))
+        clock = time.perf_counter
+        w0 = clock()
+        for i, (topic, ns, data) in enumerate(msgs):
+            feed(topic[1:], data)
+            t_bus[i] = ns * 1e-9
+            wall[i] = clock() - w0
+        sp.end_stream(None)
+    finally:
+        FaultMonitor.bank_type = saved
+    return sp, t_bus, wall
+
+
+def _interval(t_bus: np.ndarray, wall: np.ndarray, t0: float, t1: float) -> float:
+    i, j = np.searchsorted(t_bus, [t0, t1])
+    return float(wall[j - 1] - wall[i - 1]) if i > 0 else float(wall[j - 1])
+
+
+def _process_wall(path: Path, out: Path) -> float:
+    from radical_rt.batch import process
+    t0 = time.perf_counter()
+    process([str(path)], str(out))
+    return time.perf_counter() - t0
+
+
+def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, Any]:
+    if profile not in PROFILES:
+        raise ValueError(f"unknown profile {profile!r} (one of {sorted(PROFILES)})")
+    from perf.fdi_table import fault_toml, synth
+    from radical_rt.fdi_hypotheses import HypothesisBank
+    fault, duration, reps = PROFILES[profile]
+    banks = _bank_types()
+    res: dict[str, Any] = {"profile": profile, "fault": fault, "duration_s": duration,
+                           "repetitions": reps}
+    with tempfile.TemporaryDirectory(prefix="bench_fdi_bank_") as tmp:
+        nominal = synth(fault_toml(None, duration=duration), Path(tmp) / "nominal.mcap")
+        faulty = synth(fault_toml(fault, duration=duration), Path(tmp) / "fault.mcap")
+        m_nom, m_flt = _messages(nominal), _messages(faulty)
+        # untimed warm-up (loads or compiles every kernel), and the alarm and isolation times
+        _feed(m_nom, HypothesisBank)
+        sp, _t, _w = _feed(m_flt, HypothesisBank)
+        fdi = sp.engine.fdi
+        if not (fdi.alarms and fdi.isolations):
+            raise RuntimeError(f"no alarm or no isolation in the benchmark scenario: {fdi.counts}")
+        t0, t1 = fdi.alarms[0]["t_alarm"], fdi.isolations[0]["t_isolated"]
+        res.update({"t_alarm_s": t0, "t_isolated_s": t1, "gyro": fdi.isolations[0]["gyro"],
+                    "bank_trackers": fdi.isolations[0]["trackers"]})
+        rows: dict[str, list[float]] = {"nominal": []}
+        per_trk: dict[str, list[float]] = {}
+        for rep in range(reps):
+            _, tb, w = _feed(m_nom, HypothesisBank)
+            rows["nominal"].append(_interval(tb, w, t0, t1) / (t1 - t0))
+            for name, bank in banks.items():
+                if name == "Python bank" and rep > 0:
+                    continue  # slow, and its figure is not what the run is about
+                if hasattr(bank, "spent"):
+                    bank.spent, bank.samples = 0.0, 0
+                sp, tb, w = _feed(m_flt, bank)
+                rows.setdefault(name, []).append(_interval(tb, w, t0, t1) / (t1 - t0))
+                if hasattr(bank, "spent") and bank.samples:
+                    per_trk.setdefault(name, []).append(bank.spent / bank.samples)
+        nom = float(np.median(rows["nominal"]))
+        res["rows"] = [{"name": name, "ms_per_s": 1e3 * float(np.median(v)),
+                        "x_nominal": float(np.median(v)) / nom,
+                        "x_nominal_per_rep": [x / y for x, y in zip(v, rows["nominal"], strict=False)],
+                        "us_per_tracker": (1e6 * float(np.median(per_trk[name]))
+                                           if name in per_trk else None)}
+                       for name, v in rows.items()]
+        w_nom = [_process_wall(nominal, Path(tmp) / "out_nom.mcap") for _ in range(max(1, reps // 2))]
+        w_flt = [_process_wall(faulty, Path(tmp) / "out_flt.mcap") for _ in range(max(1, reps // 2))]
+        res["process"] = {"nominal_s": float(np.median(w_nom)), "fault_s": float(np.median(w_flt)),
+                          "ratio": float(np.median(w_flt) / np.median(w_nom)),
+                          "bank_fraction_of_run": (t1 - t0) / duration}
+    x = next(r for r in res["rows"] if r["name"] == "compiled bank")["x_nominal"]
+    # (smoke: too short an interval to judge; ok None = not checked)
+    res["checks"] = [{"name": "bank-active run ≤ 1.5× nominal",
+                      "ok": None if profile == "smoke" else bool(x <= 1.5)}]
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"fdi_bank_{profile}.json").write_text(json.dumps(res, indent=1) + "\n")
+    return res
+
+
+def markdown(res: dict[str, Any]) -> str:
+    lines = [f"Bank active {res['t_alarm_s']:.1f}–{res['t_isolated_s']:.1f} s of a {res['duration_s']:.0f}-s "
+             f"run ({res['bank_trackers']} tracker samples; median of {res['repetitions']})", "",
+             "| run | bank active [ms per s of stream] | × nominal | bank [µs per tracker sample] |",
+             "|---|---|---|---|"]
+    for r in res["rows"]:
+        us = "–" if r["us_per_tracker"] is None else f"{r['us_per_tracker']:.0f}"
+        lines.append(f"| {r['name']} | {r['ms_per_s']:.2f} | {r['x_nominal']:.2f} | {us} |")
+    p = res["process"]
+    lines += ["", f"`radical process` (whole run): nominal {p['nominal_s']:.2f} s, fault "
+              f"{p['fault_s']:.2f} s (× {p['ratio']:.2f}; the bank runs for "
+              f"{100 * p['bank_fraction_of_run']:.0f} % of the stream)."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m perf.bench_fdi_bank",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--profile", default="quick", choices=list(PROFILES))
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    args = p.parse_args(argv)
+    res = run(args.profile, args.out)
+    print(markdown(res))
+    return 1 if any(c["ok"] is False for c in res["checks"]) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,174 @@
+"""The FDI hypothesis bank (docs/fdi.md §3): H0 (all gyros) and H_i (gyro i left out), compiled.
+
+Each hypothesis is an open-loop attitude propagation with the snapshot calibration and a Schmidt
+attitude filter on the buffered tracker samples whose considered states are every parameter of the
+snapshot (gyro calibration, ST2 misalignment φ2, tracker latency). The log-likelihoods of the
+tracker innovations decide. The arithmetic is in :mod:`radical_rt.fdi_bank`: one kernel call per
+tracker sample for all hypotheses (the gyro samples up to its epoch, the covariance, the update);
+this class keeps the stacked state, routes the monitor's buffers to the kernels and takes the
+decision.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from . import ud
+from .fdi_bank import bank_flush, bank_propagate, bank_step
+from .fdi_detect import chi2_isf
+from .model import refresh_axes
+
+NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
+CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
+
+
+class HypothesisBank:
+    """The bank of one alarm, started from the engine snapshot ``snap`` (radical_rt.fdi.Snapshot).
+
+    State (nh = n_gyro + 1 hypotheses, row h; npar = ns − 3 considered parameters): ``q`` (nh, 4)
+    q_body_from_inertial, ``omega`` (nh, 3) [rad/s, body], ``Ptt`` (nh, 3, 3) [rad²], ``Ptp``
+    (nh, 3, npar), ``Ppp`` (npar, npar) the snapshot's parameter covariance, ``ll`` (nh,) the
+    robust log-likelihood, ``nis`` (nh,) the capped NIS sums, ``k`` tracker samples processed,
+    ``t_last`` [s] the last gyro sample propagated, ``trk_seq`` the last tracker sequence number
+    processed. ``nis_k``, ``logdet_k`` (nh,) hold the last tracker sample's NIS and ln det S.
+    """
+
+    def __init__(self, eng, snap, t_alarm: float) -> None:
+        n, npar = eng.n_gyro, eng.ns - 3
+        self.snap, self.t_alarm = snap, t_alarm
+        self.gyros: list[int | None] = [None] + list(range(n))
+        self.masks = np.zeros((n + 1, n), np.bool_)
+        self.masks[1:] = np.eye(n, dtype=np.bool_)
+        nh = n + 1
+        self.xp = snap.xp.copy()
+        self.A, self.Minv, self.Gp = np.zeros((3, n)), np.eye(3), np.zeros((3, n))
+        N = snap.N.copy()
+        refresh_axes(self.xp, eng.geo.W, eng.geo.U, eng.geo.V, snap.N.copy(), self.A, self.Minv,
+                     self.Gp, N)
+        self.N_none = np.zeros((n, 0))
+        P = np.empty((eng.ns, eng.ns))
+        ud.ud_to_cov(snap.U, snap.d, P)
+        self.Ppp = np.ascontiguousarray(P[3:, 3:])
+        self.Ptt = np.repeat(P[None, :3, :3], nh, axis=0)
+        self.Ptp = np.repeat(P[None, :3, 3:], nh, axis=0)
+        self.q = np.repeat(snap.q[None, :], nh, axis=0)
+        self.omega = np.repeat(snap.omega[None, :], nh, axis=0)
+        self.ll = np.zeros(nh)  # log-likelihood (robust, up to a common constant)
+        self.nis = np.zeros(nh)  # capped NIS sums
+        self.nis_k, self.logdet_k = np.zeros(nh), np.zeros(nh)
+        self.k = 0  # tracker samples processed
+        self.t_last = snap.t  # last gyro sample propagated
+        self.trk_seq = snap.trk_seq
+        self.undetermined = np.zeros(nh, np.int64)
+        lay = eng.layout
+        self.phi_col = lay["phi2"].start - 3
+        self.lat_col = lay["lat"].start - 3 if "lat" in lay else -1
+        self.phi = self.xp[self.phi_col:self.phi_col + 3].copy()
+        self.tau = float(self.xp[self.lat_col]) if self.lat_col >= 0 else 0.0
+        self.tlast = np.array([snap.t])  # last gyro sample propagated [s] (the kernels' copy)
+        # transition of each hypothesis since its covariance was last brought up to date
+        self.Phi_aa = np.repeat(np.eye(3)[None], nh, axis=0)
+        self.Phi_ap, self.Q_aa = np.zeros((nh, 3, npar)), np.zeros((nh, 3, 3))
+        self._pw = (np.zeros((2, n)), np.zeros((2, n)), np.zeros(4, np.int64), np.zeros(3),
+                    np.zeros(3))  # propagate_window work
+        self._w33, self._w3p, self._w4 = np.zeros((12, 3, 3)), np.zeros((3, 3, npar)), np.zeros((4, 4))
+        self._sig_src, self._sig = None, np.zeros(3)
+        self._decided: tuple = (None, None)  # ((k, llr_min), decision) of the last decision
+        self.bad_s = 0  # hypothesis-samples whose S was not positive definite (ll = −inf)
+
+    # ------------------------------------------------------------------ kernels
+    def _cal(self, eng) -> tuple:
+        return (self.masks, self.xp, self.A, eng.geo.W, eng.geo.U, eng.geo.V, self.Minv, self.Gp,
+                self.N_none, eng.si.arw_var_per_s, self.q, self.omega, self.tlast,
+                self.undetermined, self.Phi_aa, self.Phi_ap, self.Q_aa)
+
+    def propagate_to(self, eng, buf, t_end: float) -> None:
+        """All hypotheses through the buffered gyro samples with t_last < t ≤ t_end (one call;
+        the covariance follows at the next tracker sample or :meth:`final_state`)."""
+        f, st, br, i0, end = buf.blocks()
+        if end > i0 and bank_propagate(f, st, br, i0, end, t_end, *self._cal(eng), *self._pw):
+            self.t_last = float(self.tlast[0])
+
+    def update_tracker(self, eng, gbuf, j: int, t_epoch: float, q_meas: np.ndarray,
+                       n_stars: int) -> None:
+        """One valid tracker sample (ST ``j``, epoch [s], measured q_st_from_inertial, stars) for
+        every hypothesis, after the gyro samples up to its epoch (one call)."""
+        if j == 1:
+            R_nom, use_phi = eng.geo.R_st1_from_body, False
+        else:
+            R_nom, use_phi = eng.geo.R_st2_from_body_nom, True
+        si = eng.si
+        if si.st_sigma is not self._sig_src:
+            self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
+        f, st, br, i0, end = gbuf.blocks()
+        self.bad_s += bank_step(
+            f, st, br, i0, end, q_meas, n_stars, t_epoch, R_nom, use_phi, self.phi, self.phi_col,
+            self.lat_col, self.tau, self._sig, si.st_ref_stars, eng.timing_sigma(), NIS_CAP,
+            *self._cal(eng), self.Ptt, self.Ptp, self.Ppp, self.ll, self.nis, self.nis_k,
+            self.logdet_k, *self._pw, self._w33, self._w3p, self._w4)
+        self.t_last = float(self.tlast[0])
+        self.k += 1
+
+    def final_state(self, eng, gbuf, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                         np.ndarray]:
+        """(q (4,), omega (3,), Ptt (3, 3), Ptp (3, npar)) of hypothesis h at the engine's last
+        propagated sample: the gyro samples since the last tracker sample and the pending
+        transition applied (the monitor's hand-over at an isolation)."""
+        self.propagate_to(eng, gbuf, eng.t)
+        bank_flush(self.Phi_aa, self.Phi_ap, self.Q_aa, self.Ptt, self.Ptp, self.Ppp,
+                   self._w3p[0], self._w3p[1], self._w33[10])
+        return self.q[h], self.omega[h], self.Ptt[h], self.Ptp[h]
+
+    # ------------------------------------------------------------------ driver and decision
+    def advance(self, eng, gbuf, trk: deque, t_upto: float) -> None:
+        """Process the buffered trackers (seq > last) with epoch ≤ t_upto, each after the gyro
+        samples up to its epoch, in the engine's order. The gyro samples after the last tracker
+        sample wait for the next one (or :meth:`final_state`): they cannot change the
+        log-likelihoods, and the propagation composes the same transition whatever the runs
+        (sample by sample), so only the covariance's rounding depends on where runs end."""
+        # sequence numbers are consecutive in the deque: index the first one not yet processed
+        k = max(0, self.trk_seq + 1 - trk[0][0]) if trk else 0
+        while k < len(trk):
+            seq, epoch, j, q_meas, n_stars = trk[k]
+            k += 1
+            if epoch > t_upto:
+                break
+            self.update_tracker(eng, gbuf, j, epoch, q_meas, n_stars)
+            self.trk_seq = seq
+
+    def decision(self, llr_min: float) -> tuple[str, int | None, float]:
+        """("isolate", gyro, margin), ("none", None, margin) when H0 wins, or ("wait", …)."""
+        key = (self.k, llr_min)
+        if key == self._decided[0]:
+            return self._decided[1]  # ll and nis change only with a tracker sample
+        self._decided = (key, self._decide(llr_min))
+        return self._decided[1]
+
+    def _decide(self, llr_min: float) -> tuple[str, int | None, float]:
+        if self.k == 0:
+            return "wait", None, 0.0
+        ll = self.ll.tolist()  # best and runner-up, the first index on ties (a stable argsort)
+        best = max(range(len(ll)), key=ll.__getitem__)
+        second = max((h for h in range(len(ll)) if h != best), key=ll.__getitem__)
+        margin = float(ll[best] - ll[second])
+        if margin < llr_min:
+            return "wait", None, margin
+        if self.nis[best] > chi2_isf(CONSISTENCY_P, 3 * self.k):
+            return "wait", None, margin  # even the best hypothesis does not explain the trackers
+        gyro = self.gyros[best]
+        return ("none" if gyro is None else "isolate"), gyro, margin
+
+    def summary(self) -> dict[str, Any]:
+        best = float(np.max(self.ll)) if self.k else 0.0
+        return {"t_start": self.snap.t, "trackers": self.k,
+                "llr": {("all" if g is None else f"ex{g}"): float(self.ll[h] - best)
+                        for h, g in enumerate(self.gyros)},
+                "nis_mean": {("all" if g is None else f"ex{g}"): float(self.nis[h] / max(self.k, 1))
+                             for h, g in enumerate(self.gyros)},
+                "undetermined": [int(x) for x in self.undetermined]}
+
+
+__all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank"]

@@ -1,0 +1,19 @@
+"""Keeps perf/bench_fdi_bank.py from rotting: the smoke profile, checked for shape, never for speed."""
+
+from __future__ import annotations
+
+import json
+
+from perf import bench_fdi_bank
+
+
+def test_bench_fdi_bank_smoke(tmp_path):
+    res = bench_fdi_bank.run("smoke", out_dir=tmp_path)
+    assert json.loads((tmp_path / "fdi_bank_smoke.json").read_text())["profile"] == "smoke"
+    names = [r["name"] for r in res["rows"]]
+    assert names[:3] == ["nominal", "compiled bank", "no-op bank"]
+    assert res["gyro"] == 1 and res["bank_trackers"] > 0
+    comp = res["rows"][1]
+    assert comp["ms_per_s"] > 0.0 and comp["us_per_tracker"] > 0.0
+    assert res["checks"][0]["ok"] is None  # too short to judge the speed
+    assert "× nominal" in bench_fdi_bank.markdown(res)
