@@ -22,6 +22,7 @@ from . import ckpt_validate as cv
 from . import clock_layout as L
 from .flags import Flag
 from .stream import StreamProcessor
+from .siru_wire import SS_WINDOW
 from .tracker_queue import SI_END, SI_HEAD, SI_LATE, SI_SEQ
 
 MODES = ("init", "converging", "converged", "degraded")
@@ -207,8 +208,8 @@ def _check_queues(qd: Any, sp: StreamProcessor, plan: Plan) -> None:
     if m > 1 and not (np.diff(plan.gyro["t"]) >= 0).all():
         raise cv.CheckpointFieldError("queues.gyro.t: samples must be in time order")
     tr = cv.need(qd, "tracker", "queues")
-    ss = cv.array(cv.need(tr, "ss", "queues.tracker"), "queues.tracker.ss", "<f8", (6,),
-                  -T_MAX, T_MAX, finite=False)
+    ss = cv.array(cv.need(tr, "ss", "queues.tracker"), "queues.tracker.ss", "<f8",
+                  (len(sp._tq.ss),), -T_MAX, T_MAX, finite=False)
     si = cv.array(cv.need(tr, "si", "queues.tracker"), "queues.tracker.si", "<i8", (4,),
                   0, cv.INT_MAX)
     r = cv.need(cv.need(tr, "ev_f", "queues.tracker"), "shape", "queues.tracker.ev_f")
@@ -295,7 +296,9 @@ def apply(sp: StreamProcessor, plan: Plan) -> None:
     r = len(t["ev_f"])
     while tq.ev_f.shape[0] < r + 1:
         tq.grow()
+    window = tq.ss[SS_WINDOW]  # configuration of this node, not state
     tq.ss[:] = t["ss"]
+    tq.ss[SS_WINDOW] = window
     tq.si[SI_LATE], tq.si[SI_SEQ] = t["si"][SI_LATE], t["si"][SI_SEQ]
     tq.ev_f[:r], tq.ev_i[:r] = t["ev_f"], t["ev_i"]
     tq.si[SI_HEAD], tq.si[SI_END] = 0, r
