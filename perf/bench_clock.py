@@ -72,7 +72,7 @@ def read_archive(path: str | Path) -> dict:
             t_true.append(msg["t_true"])
     counts = json.loads(reader.scenario["truth_counts"])
     return {"msgs": msgs, "tt": np.concatenate(tt_true).astype(np.int64),
-            "t_true": np.concatenate(t_true), "counts": counts}
+            "t_true": np.concatenate(t_true), "counts": counts, "meta": dict(reader.scenario)}
 
 
 def run_clock(msgs, mode: str = "reconstruct") -> dict:
@@ -102,13 +102,15 @@ def run_clock(msgs, mode: str = "reconstruct") -> dict:
 
 def match_truth(tt_out: np.ndarray, tt_true: np.ndarray) -> np.ndarray:
     """Index into the truth rows of each released (non-bridged) sample, matching time tags in
-    order (tags repeat after a wrap or a reset, order does not)."""
-    idx = np.empty(tt_out.size, np.int64)
-    p = 0
-    truth = tt_true.tolist()
+    order (tags repeat after a wrap or a reset, order does not); −1 where a tag has no later
+    truth row (should not happen)."""
+    idx = np.full(tt_out.size, -1, np.int64)
+    truth, p, n = tt_true.tolist(), 0, tt_true.size
     for i, q in enumerate(tt_out.tolist()):
-        while truth[p] != q:
+        while p < n and truth[p] != q:
             p += 1
+        if p == n:
+            break
         idx[i] = p
     return idx
 
@@ -148,6 +150,8 @@ def evaluate(path: str | Path) -> dict:
         r = run_clock(data["msgs"], mode)
         real = r["tt"] >= 0
         idx = match_truth(r["tt"][real], data["tt"])
+        if (idx < 0).any():
+            raise ValueError(f"{path}: released samples without a truth row")
         err = r["t"][real] - data["t_true"][idx]
         errs[mode] = (err, data["t_true"][idx], r["crossings"][real])
         locked = r["locked"][real]

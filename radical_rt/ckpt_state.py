@@ -21,8 +21,8 @@ import numpy as np
 from . import ckpt_validate as cv
 from . import clock_layout as L
 from .flags import Flag
-from .stream import StreamProcessor
 from .siru_wire import SS_WINDOW
+from .stream import StreamProcessor
 from .tracker_queue import SI_END, SI_HEAD, SI_LATE, SI_SEQ
 
 MODES = ("init", "converging", "converged", "degraded")

@@ -23,6 +23,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
+from perf.bench_clock import match_truth, read_archive
 from radical_rt.clock import ClockConfig, SiruClock
 from radical_rt.flags import Flag
 from replayer.archive import ArchiveReader
@@ -34,19 +35,9 @@ EVENT_PRE_S, EVENT_POST_S = 1.0, 10.0  # CLOCK_ANOMALY allowed around an injecte
 def read_input(path: str | Path) -> dict:
     """``/siru`` messages as column arrays, truth sample tags and times, and the metadata truth
     (``truth_counts``, ``siru_timing``)."""
-    msgs, tt, t_true = [], [], []
-    with ArchiveReader(path) as r:
-        for topic, _t, m in r.iter_messages(topics=["/siru", "/truth/siru_time"]):
-            if topic == "/siru":
-                msgs.append((np.asarray(m["t_bus"], float), np.asarray(m["tt"], np.int64),
-                             np.asarray(m["dtheta"], float), np.asarray(m["status"], np.int64)))
-            else:
-                tt.append(m["tt"])
-                t_true.append(m["t_true"])
-        meta = r.scenario
-    return {"msgs": msgs, "tt": np.concatenate(tt).astype(np.int64),
-            "t_true": np.concatenate(t_true), "counts": json.loads(meta["truth_counts"]),
-            "timing": json.loads(meta["siru_timing"])}
+    data = read_archive(path)
+    data["timing"] = json.loads(data.pop("meta")["siru_timing"])
+    return data
 
 
 def clock_run(msgs: list) -> dict:
@@ -92,20 +83,6 @@ def lock_times(t_msg: np.ndarray, locked: np.ndarray, t0: float, t_end: float,
             delay = float((tm[0] if bad.size == 0 else tm[bad[-1] + 1]) - a)
         out.append({"start_s": a, "length_s": b - a, "delay_s": delay})
     return out
-
-
-def match_truth(tt_out: np.ndarray, tt_true: np.ndarray) -> np.ndarray:
-    """Truth row of each released sample, matching tags in order (tags repeat after a wrap or
-    a reset; the order does not). −1 where a tag has no later truth row (should not happen)."""
-    idx = np.full(tt_out.size, -1, np.int64)
-    truth, p, n = tt_true.tolist(), 0, tt_true.size
-    for i, q in enumerate(tt_out.tolist()):
-        while p < n and truth[p] != q:
-            p += 1
-        if p == n:
-            break
-        idx[i] = p
-    return idx
 
 
 def _rms(x: np.ndarray) -> float:
