@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "monitor": ("monitors.cli", "live dashboards (web, tui)"),
     "report": ("monitors.report", "paper-style tables and figures from an output archive"),
     "bench": ("perf.cli", "run the benchmark suite"),
+    "design": ("radical_rt.design.cli", "covariance analysis and optimization of a calibration maneuver"),
 }
 
 
