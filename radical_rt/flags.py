@@ -22,6 +22,8 @@ class Flag(IntFlag):
     NUMERIC = 1 << 11
     INPUT_REJECTED = 1 << 12
     NOT_CONVERGED = 1 << 13
+    # extensions (docs/contract_extensions.md)
+    EXCITATION_LOW = 1 << 16  # a maneuver is under way but some unconverged group learns nothing
 
 
 GYRO_FAILED = (Flag.GYRO_A_FAILED, Flag.GYRO_B_FAILED, Flag.GYRO_C_FAILED, Flag.GYRO_D_FAILED)
