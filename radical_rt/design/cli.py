@@ -52,6 +52,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="BEST.toml", help="--optimize: write the best maneuver here")
     p.add_argument("--max-duration", type=float, default=7200.0, metavar="S",
                    help="--optimize: longest acceptable maneuver (default 7200 s)")
+    p.add_argument("--groups", metavar="G1,G2", help="--optimize: only these groups' targets "
+                   "(e.g. b,lam,mu,du,dv)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
