@@ -1,8 +1,8 @@
 """Excitation monitor: is the recent motion informative for each parameter group?
 
-Per parameter group g (b, λ, μ, du, dv, φ2) the monitor keeps, every ``period_s`` = 5 s (at a
+Per parameter group g (b, λ, μ, du, dv, φ2) the monitor keeps, every ``period_s`` = 10 s (at a
 closed parity sum, a point the reference and the compiled paths share, so the flag is
-bit-identical between them; about 150 µs per step, 30 µs per second of telemetry), the log of the UD variances of the group's states, and the body
+bit-identical between them; about 150 µs per step, 15 µs per second of telemetry), the log of the UD variances of the group's states, and the body
 rotation angle accumulated since the start (the angle between successive attitude estimates). Over a sliding window of
 ``window_s`` seconds:
 
@@ -41,7 +41,7 @@ class ExcitationMonitor:
     """Sliding-window information gain per parameter group (see the module docstring)."""
 
     def __init__(self, layout: StateLayout, window_s: float = 60.0, gain_min: float = 0.02,
-                 rotation_min_deg: float = 2.0, period_s: float = 5.0) -> None:
+                 rotation_min_deg: float = 2.0, period_s: float = 10.0) -> None:
         self.window_s, self.gain_min = float(window_s), float(gain_min)
         self.period_s = float(period_s)
         self.rotation_min = math.radians(rotation_min_deg)

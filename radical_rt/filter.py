@@ -284,7 +284,7 @@ class Engine(FastRelease, EngineState):
         self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
             self._queue_parity()
-            ex = self.excitation  # every 5 s, at the same point on both paths
+            ex = self.excitation  # every 10 s, at the same point on both paths
             if ex is not None and ex.due(self.t):
                 self.flags = ex.update(self.t, self._covariance(), self.q, self.conv_var,
                                        self.flags)
