@@ -97,3 +97,15 @@ def test_time_to_target_definition():
     targets = {g: np.full(3 if g == "phi2" else 4, 0.5) for g in PARAM_GROUPS}
     ttt = analysis.time_to_target(t, sig, targets)
     assert ttt["b"] == 2.0 and math.isinf(ttt["lam"])
+
+
+def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
+    from radical_rt.design.optimize import Candidate
+
+    c = Candidate(a_y=30.0, a_xz=10.0, hold_s=240.0, repeats=2, start_s=172.5, dwell_s=300.0)
+    sc = planmod.load(c.scenario())
+    prof = sc.profile()
+    assert prof.end_time - prof.t0 + c.dwell_s == pytest.approx(c.duration_s(), abs=1e-6)
+    assert sc.cfg["duration_s"] == pytest.approx(c.duration_s(), abs=1e-3)
+    axes = [m.axis for m in prof.moves]
+    assert axes == ["x"] * 3 + ["z"] * 3 + ["y"] * 6
