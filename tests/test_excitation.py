@@ -62,3 +62,14 @@ def test_rest_never_warns():
     rep = eng.excitation.report()
     assert rep is not None and not rep["rotating"] and rep["not_excited"] == []
     assert np.isfinite(rep["groups"]["b"]["gain"])
+
+
+def test_dashboard_line():
+    from monitors.common import excitation_text
+
+    eng, _log = run("xz")
+    assert excitation_text(None) == ""
+    line = excitation_text(eng.excitation.report())
+    assert line.startswith("60 s") and "gain b" in line
+    rep = dict(eng.excitation.report(), not_excited=["lam", "du"])
+    assert excitation_text(rep).endswith("NOT EXCITED: lam, du")
