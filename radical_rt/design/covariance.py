@@ -75,6 +75,12 @@ class Plan:
     sigma_unlocked_s: float = SIGMA_UNLOCKED_S
     sigma_locked_s: float = SIGMA_LOCKED_S
     tracker_visible: Callable | None = None
+    #: star counts cycled through sample by sample (their mean information, the stationary
+    #: distribution of the simulator's star-count random walk), None: always n_stars
+    n_stars_cycle: tuple[int, ...] | None = None
+    #: fraction of tracker samples that arrive valid (1 − invalid − dropout probability); the
+    #: others are left out evenly spread
+    tracker_keep: float = 1.0
 
 
 @dataclass
@@ -142,9 +148,16 @@ def tracker_events(plan: Plan, geo) -> types.SimpleNamespace:
         vis = np.ones(len(epochs), bool)
         if plan.tracker_visible is not None:
             vis = np.asarray(plan.tracker_visible(j, epochs), bool)
+        if plan.tracker_keep < 1.0:  # evenly spread losses (offset per tracker)
+            kk = np.arange(len(epochs)) + 0.5 * j
+            vis &= np.floor(kk * (1.0 - plan.tracker_keep)) == np.floor((kk - 1) * (1.0 - plan.tracker_keep))
+        stars = np.full(len(epochs), plan.n_stars, np.int64)
+        if plan.n_stars_cycle:
+            cyc = np.asarray(plan.n_stars_cycle, np.int64)
+            stars = cyc[(np.arange(len(epochs)) + j) % len(cyc)]
         f = np.column_stack([epochs, q])[vis]
         i = np.zeros((len(f), 4), np.int64)
-        i[:, 0], i[:, 1], i[:, 2] = j, plan.n_stars, 1
+        i[:, 0], i[:, 1], i[:, 2] = j, stars[vis], 1
         rows_f.append(f)
         rows_i.append(i)
     f = np.concatenate(rows_f) if rows_f else np.zeros((0, 5))

@@ -31,7 +31,9 @@ def tables() -> dict:
 def plan_of(sc, t0: float | None = None, warm: bool = False,
             pointing: Pointing | None = None, geo=None) -> Plan:
     """The :class:`Plan` of a scenario: its maneuver profile from bus time ``t0`` (default the
-    scenario's ``t_start_s``), its tracker set-up (rate, latency, stars, on/off) and SIRU clock
+    scenario's ``t_start_s``), its tracker set-up (rate, latency, on/off; the star count's
+    long-run distribution, uniform on [n_stars_min, n_stars_max] when it wanders, and the
+    expected share of invalid and missing samples) and SIRU clock
     (lock at the second sawtooth wrap, the first after a warm start); with ``pointing`` the
     trackers are blinded inside their Sun exclusion cone."""
     cfg = copy.deepcopy(sc.cfg)
@@ -46,10 +48,15 @@ def plan_of(sc, t0: float | None = None, warm: bool = False,
     if pointing is not None and pointing.exclusion_deg > 0 and geo is not None:
         visible = tracker_visibility(prof, pointing.sun(cfg["maneuver"]["q0_body_from_inertial"]),
                                      geo, pointing.exclusion_deg)
+    cycle = None
+    if tr["n_stars_step_prob"] > 0 and tr["n_stars_max"] > tr["n_stars_min"]:
+        # the star count's random walk (reflecting on [min, max]) is uniform in the long run
+        cycle = tuple(range(int(tr["n_stars_min"]), int(tr["n_stars_max"]) + 1))
+    keep = max(0.0, 1.0 - tr["invalid_prob"] - tr["dropout_prob"])
     return Plan(prof, cfg["t_start_s"], cfg["duration_s"], siru_period_s=s["period_s"],
                 tracker_rate_hz=tr["rate_hz"], latency_s=tr["latency_s"],
                 n_stars=int(tr["n_stars_start"]), trackers=(bool(tr["st1"]), bool(tr["st2"])),
-                lock_s=lock, tracker_visible=visible)
+                lock_s=lock, tracker_visible=visible, n_stars_cycle=cycle, tracker_keep=keep)
 
 
 def warm_engine(prior_spec="2006216", table=None, progress: Callable | None = None):
