@@ -28,8 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from monitors.common import (FLAG_BITS, GROUP_LABELS, ORDER, PAPER_UNITS, element_names,
-                             excitation_text, flag_label)
+from monitors.common import (
+    FLAG_BITS,
+    GROUP_LABELS,
+    ORDER,
+    PAPER_UNITS,
+    element_names,
+    excitation_text,
+    flag_label,
+)
 from monitors.live import TOPICS, LatestStore, pick_vehicle
 from monitors.view import clock_lines, counter_lines, fault_line, tlm_columns, tlm_row, tlm_shape
 

@@ -26,8 +26,8 @@ import numpy as np
 
 from . import ud
 from .engine_state import EngineState, _psl
-from .fastpath_glue import _ST_EDITED_BIT, _ST_KIND, FastRelease
 from .excitation import ExcitationMonitor
+from .fastpath_glue import _ST_EDITED_BIT, _ST_KIND, FastRelease
 from .fdi import FaultMonitor
 from .flags import Flag
 from .geometry import Geometry
