@@ -109,3 +109,22 @@ def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
     assert sc.cfg["duration_s"] == pytest.approx(c.duration_s(), abs=1e-3)
     axes = [m.axis for m in prof.moves]
     assert axes == ["x"] * 3 + ["z"] * 3 + ["y"] * 6
+
+
+def test_pointing_constraints_of_the_messenger_maneuver():
+    from radical_rt.design.constraints import Pointing, check, tracker_visibility
+    from radical_rt.geometry import Geometry
+
+    sc = planmod.load("2006216")
+    prof, q0 = sc.profile(), sc.cfg["maneuver"]["q0_body_from_inertial"]
+    p = Pointing("y", 1.0, 12.0, 30.0)
+    r = check(prof, 0.0, 7200.0, q0, p, Geometry())
+    # ±10° about x and z move y off the Sun by 10°; rotations about y keep it; the trackers look
+    # along −z, 90° from y, so at least 80° from the Sun
+    assert r["sun_axis_max_deg"] == pytest.approx(10.0, abs=0.05) and r["ok"]
+    assert r["st1_sun_min_deg"] == pytest.approx(80.0, abs=0.05)
+    assert not check(prof, 0.0, 7200.0, q0, Pointing("y", 1.0, 8.0), Geometry())["ok"]
+    # a 85° cone blinds the trackers after +10° about x (boresight 80° from the Sun), not during
+    # the z slews (a rotation about z keeps the −z boresight 90° from the Sun)
+    vis = tracker_visibility(prof, p.sun(q0), Geometry(), 85.0)
+    assert vis(1, np.array([100.0, 400.0, 1240.0])).tolist() == [True, False, True]
