@@ -97,4 +97,6 @@ def excitation_text(ex: dict | None) -> str:
     gains = " ".join(f"{g} {v['gain']:+.2f}" for g, v in ex["groups"].items())
     bad = ex.get("not_excited") or []
     tail = f"  NOT EXCITED: {', '.join(bad)}" if bad else ""
+    if ex.get("rotate_about"):
+        tail += f"  (axes not yet turned about: {', '.join(ex['rotate_about'])})"
     return f"{ex['window_s']:.0f} s, rotated {ex['rotation_deg']:.1f}°; gain {gains}{tail}"

@@ -17,6 +17,12 @@ rotation angle accumulated since the start (the angle between successive attitud
 * a group is **not excited** when the body turned by at least ``rotation_min_deg`` in the window
   (a calibration maneuver is under way), the group is not converged, and ``gain < gain_min``.
 
+With the nominal triads (``triads``), each step also reports ``axis_sigma_arcsec``: the rms over
+the gyros of σ(a_iᵀe_k), the sense axes' components along body x, y and z, and ``rotate_about``:
+the body axes whose σ is still above the misalignment threshold — the axes the maneuver has not
+(yet) turned about, which is what tells a maneuver without a y rotation from one that has not
+reached its y rotation yet.
+
 If any group is not excited, bit 16 ``EXCITATION_LOW`` of ``flags`` is set (and cleared as soon as
 none is). Example: a maneuver without any rotation about body y leaves the y components of the
 sense axes unobservable: λ, du, dv stay unconverged with zero gain through every x and z slew
@@ -31,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from .conventions import ARCSEC
 from .flags import Flag
 from .state import PARAM_GROUPS, StateLayout
 
@@ -41,13 +48,15 @@ class ExcitationMonitor:
     """Sliding-window information gain per parameter group (see the module docstring)."""
 
     def __init__(self, layout: StateLayout, window_s: float = 60.0, gain_min: float = 0.02,
-                 rotation_min_deg: float = 2.0, period_s: float = 10.0) -> None:
+                 rotation_min_deg: float = 2.0, period_s: float = 10.0,
+                 triads: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         self.window_s, self.gain_min = float(window_s), float(gain_min)
         self.period_s = float(period_s)
         self.rotation_min = math.radians(rotation_min_deg)
         self._slices = [(g, layout[g]) for g in PARAM_GROUPS]
         self._axis_idx = np.concatenate([np.arange(layout[g].start, layout[g].stop)
                                          for g in ("lam", "du", "dv")])
+        self._G = None if triads is None else _axis_rows(layout, *triads)
         self.clear()
 
     def clear(self) -> None:
@@ -101,8 +110,33 @@ class ExcitationMonitor:
                 warn.append(g)
         self.last = {"t": t, "window_s": t - t0, "rotation_deg": math.degrees(self._rot - rot0),
                      "rotating": rotating, "groups": groups, "not_excited": warn}
+        if self._G is not None:
+            self.last.update(self._axes(P, conv_var))
         return (flags | _BIT) if warn else (flags & ~_BIT)
+
+    def _axes(self, P: np.ndarray, conv_var: np.ndarray) -> dict[str, Any]:
+        """σ of the sense axes' components along body x, y, z (rms over the gyros of
+        σ(a_iᵀe_k), arcsec) and the body axes still to be rotated about (σ above the
+        misalignment convergence threshold)."""
+        G = self._G  # (3, n, ns): row of a_iᵀe_k in the error state
+        sig = np.sqrt(np.maximum(np.einsum("kis,st,kit->ki", G, P, G), 0.0))
+        rms = np.sqrt(np.mean(sig**2, axis=1)) / ARCSEC
+        thr = math.sqrt(float(conv_var[self._axis_idx[-1] - 3])) / ARCSEC
+        return {"axis_sigma_arcsec": {c: round(float(v), 4) for c, v in zip("xyz", rms, strict=True)},
+                "rotate_about": [c for c, v in zip("xyz", rms, strict=True) if v > thr]}
 
     def report(self) -> dict[str, Any] | None:
         """The last step's result (the ``excitation`` map of diag), None before the first."""
         return self.last
+
+
+def _axis_rows(layout: StateLayout, W: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """(3, n, ns): the error-state row of a_iᵀe_k (scaled axis a_i = (1+λ')w_i − du'v_i − dv'u_i,
+    body axis k): w_ik at λ_i, −v_ik at du_i, −u_ik at dv_i (nominal triads W, U, V (3, n))."""
+    n = W.shape[1]
+    G = np.zeros((3, n, layout.n_states))
+    for i in range(n):
+        G[:, i, layout["lam"].start + i] = W[:, i]
+        G[:, i, layout["du"].start + i] = -V[:, i]
+        G[:, i, layout["dv"].start + i] = -U[:, i]
+    return G

@@ -60,7 +60,8 @@ class Engine(FastRelease, EngineState):
         self.cold_start()
         self._pack()
         self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
-        self.excitation = ExcitationMonitor(self.layout)  # radical_rt.excitation; None: off
+        self.excitation = ExcitationMonitor(  # radical_rt.excitation; None: off
+            self.layout, triads=(geometry.W, geometry.U, geometry.V))
 
     # ---------------------------------------------------------------- configuration
     def params_changed(self) -> None:

@@ -17,7 +17,7 @@ from radical_rt.flags import Flag, flag_names
 
 def scenario(axes: str) -> dict:
     moves = [{"axis": ax, "angle_deg": a, "hold_s": 30.0} for ax in axes for a in (30.0, -60.0, 30.0)]
-    return {"base": "2006216", "name": "ex", "duration_s": 2000.0,
+    return {"base": "2006216", "name": "ex", "duration_s": 2200.0,
             "maneuver": {"start_s": 420.0, "moves": moves}}
 
 
@@ -42,6 +42,9 @@ def test_no_rotation_about_y_warns_for_the_scaled_axes():
     assert any(w and {"lam", "du", "dv"} <= set(r["not_excited"]) for r, w in z_slews)
     last = log[-1][0]
     assert not last["groups"]["lam"]["converged"]
+    # the monitor names the missing axis: the sense axes' y components stay at their prior
+    assert last["rotate_about"] == ["y"]
+    assert last["axis_sigma_arcsec"]["y"] > 1000 > 1 > last["axis_sigma_arcsec"]["x"]
     assert "EXCITATION_LOW" in flag_names(int(Flag.EXCITATION_LOW))
 
 
@@ -49,6 +52,7 @@ def test_full_maneuver_ends_converged_and_clear():
     eng, log = run("xyz")
     r, warned = log[-1]
     assert not warned and all(v["converged"] for v in r["groups"].values())
+    assert r["rotate_about"] == [] and max(r["axis_sigma_arcsec"].values()) < 5.0
     # while the y rotation runs, the joint scaled-axis gain is large
     gains = [r["groups"]["lam"]["gain"] for r, _w in log if 1000 < r["t"] < 1500]
     assert max(gains) > 1.0
@@ -72,4 +76,5 @@ def test_dashboard_line():
     line = excitation_text(eng.excitation.report())
     assert line.startswith("60 s") and "gain b" in line
     rep = dict(eng.excitation.report(), not_excited=["lam", "du"])
-    assert excitation_text(rep).endswith("NOT EXCITED: lam, du")
+    assert "NOT EXCITED: lam, du" in excitation_text(rep)
+    assert excitation_text(rep).endswith("(axes not yet turned about: y)")
