@@ -57,6 +57,13 @@ class ExcitationMonitor:
         self._axis_idx = np.concatenate([np.arange(layout[g].start, layout[g].stop)
                                          for g in ("lam", "du", "dv")])
         self._G = None if triads is None else _axis_rows(layout, *triads)
+        npar = layout.n_states - 3  # group averages over the parameter states, as products
+        self._count = np.zeros((len(self._slices), npar))
+        for k, (_g, sl) in enumerate(self._slices):
+            self._count[k, sl.start - 3:sl.stop - 3] = 1.0
+        self._mean = np.zeros((len(self._slices), layout.n_states))
+        self._mean[:, 3:] = self._count / self._count.sum(axis=1, keepdims=True)
+        self._axis_groups = [k for k, (g, _) in enumerate(self._slices) if g in ("lam", "du", "dv")]
         self.clear()
 
     def clear(self) -> None:
@@ -97,16 +104,17 @@ class ExcitationMonitor:
             h.popleft()
         t0, lv0, rot0 = h[0]
         rotating = self._rot - rot0 >= self.rotation_min and t - t0 >= 0.5 * self.window_s
+        gains = self._mean @ (0.5 * (lv0[:-1] - lv[:-1]))  # (6,) per group, in one product
+        joint = 0.5 * (lv0[-1] - lv[-1]) / len(self._axis_idx)
+        gains[self._axis_groups] = np.maximum(gains[self._axis_groups], joint)
+        above = (var[3:] > conv_var).astype(float)
+        conv = (self._count @ above) == 0.0
         groups, warn = {}, []
-        joint = float(0.5 * (lv0[-1] - lv[-1]) / len(self._axis_idx))
-        for g, sl in self._slices:
-            gain = float(0.5 * np.mean(lv0[sl] - lv[sl]))
-            if g in ("lam", "du", "dv"):
-                gain = max(gain, joint)
-            conv = bool(np.all(var[sl] <= conv_var[sl.start - 3:sl.stop - 3]))
+        for k, (g, _sl) in enumerate(self._slices):
+            gain = float(gains[k])
             excited = gain >= self.gain_min
-            groups[g] = {"gain": round(gain, 5), "converged": conv, "excited": excited}
-            if rotating and not conv and not excited:
+            groups[g] = {"gain": round(gain, 5), "converged": bool(conv[k]), "excited": excited}
+            if rotating and not conv[k] and not excited:
                 warn.append(g)
         self.last = {"t": t, "window_s": t - t0, "rotation_deg": math.degrees(self._rot - rot0),
                      "rotating": rotating, "groups": groups, "not_excited": warn}
@@ -118,9 +126,9 @@ class ExcitationMonitor:
         """σ of the sense axes' components along body x, y, z (rms over the gyros of
         σ(a_iᵀe_k), arcsec) and the body axes still to be rotated about (σ above the
         misalignment convergence threshold)."""
-        G = self._G  # (3, n, ns): row of a_iᵀe_k in the error state
-        sig = np.sqrt(np.maximum(np.einsum("kis,st,kit->ki", G, P, G), 0.0))
-        rms = np.sqrt(np.mean(sig**2, axis=1)) / ARCSEC
+        G = self._G  # (3n, ns): row of a_iᵀe_k (k major) in the error state
+        var = np.sum((G @ P) * G, axis=1).reshape(3, -1)
+        rms = np.sqrt(np.maximum(np.mean(var, axis=1), 0.0)) / ARCSEC
         thr = math.sqrt(float(conv_var[self._axis_idx[-1] - 3])) / ARCSEC
         return {"axis_sigma_arcsec": {c: round(float(v), 4) for c, v in zip("xyz", rms, strict=True)},
                 "rotate_about": [c for c, v in zip("xyz", rms, strict=True) if v > thr]}
@@ -131,7 +139,7 @@ class ExcitationMonitor:
 
 
 def _axis_rows(layout: StateLayout, W: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """(3, n, ns): the error-state row of a_iᵀe_k (scaled axis a_i = (1+λ')w_i − du'v_i − dv'u_i,
+    """(3n, ns), row k·n + i: the error-state row of a_iᵀe_k (scaled axis a_i = (1+λ')w_i − du'v_i − dv'u_i,
     body axis k): w_ik at λ_i, −v_ik at du_i, −u_ik at dv_i (nominal triads W, U, V (3, n))."""
     n = W.shape[1]
     G = np.zeros((3, n, layout.n_states))
@@ -139,4 +147,4 @@ def _axis_rows(layout: StateLayout, W: np.ndarray, U: np.ndarray, V: np.ndarray)
         G[:, i, layout["lam"].start + i] = W[:, i]
         G[:, i, layout["du"].start + i] = -V[:, i]
         G[:, i, layout["dv"].start + i] = -U[:, i]
-    return G
+    return G.reshape(3 * n, layout.n_states)
