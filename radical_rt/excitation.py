@@ -2,9 +2,9 @@
 
 Per parameter group g (b, λ, μ, du, dv, φ2) the monitor keeps, every ``period_s`` = 10 s (at a
 closed parity sum, a point the reference and the compiled paths share, so the flag is
-bit-identical between them; about 150 µs per step, 15 µs per second of telemetry), the log of the UD variances of the group's states, and the body
-rotation angle accumulated since the start (the angle between successive attitude estimates). Over a sliding window of
-``window_s`` seconds:
+bit-identical between them; about 165 µs per step, 17 µs per second of telemetry), the log of
+the UD variances of the group's states and the body rotation angle accumulated since the start
+(the angle between successive attitude estimates). Over a sliding window of ``window_s`` s:
 
 * ``gain`` = mean over the group's states of ln(σ(t − W)/σ(t)): the information the updates
   added in the window, normalised by what the filter already knew (0: nothing learnt; 0.69: σ
