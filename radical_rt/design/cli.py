@@ -75,7 +75,12 @@ def run(args: argparse.Namespace) -> int:
                                          args.target_scale)
         pointing = Pointing(args.sun_axis, 1.0, args.sun_max_deg, args.exclusion_deg)
         if args.optimize:
+            from ..state import PARAM_GROUPS
             from .optimize import run_cli
+            bad = set((args.groups or "b").split(",")) - set(PARAM_GROUPS)
+            if bad:
+                return _fail(f"--groups: unknown {', '.join(sorted(bad))}; "
+                             f"groups: {','.join(PARAM_GROUPS)}")
             return run_cli(args, table, targets, pointing)
         if not args.scenario:
             return _fail("a SCENARIO (built-in name or TOML file) is required")
