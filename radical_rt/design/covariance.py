@@ -9,8 +9,9 @@ into the *noise-free* measurements a perfect sensor set would give at the linear
 * SIRU samples every ``siru_period_s``: ``dθ_i = w_iᵀθ_k`` (θ_k the exact body rotation over the
   sample, w_i the nominal sense axes), no noise, no quantization;
 * tracker samples at ``tracker_rate_hz`` with epoch ``t_bus − latency``: ``q_stj_from_inertial``
-  of the exact attitude at the epoch (nominal mountings), ``n_stars`` stars, valid, unless the
-  plan's ``tracker_visible`` says the tracker is blinded (Sun exclusion).
+  of the exact attitude at the epoch (nominal mountings), ``n_stars`` stars (or cycling through
+  ``n_stars_cycle``), valid; left out where the plan's ``tracker_visible`` says the tracker is
+  blinded (Sun exclusion) and, evenly spread, the expected share of lost samples.
 
 These are released to an unmodified :class:`radical_rt.filter.Engine` exactly as
 :class:`radical_rt.stream.StreamProcessor` releases them (:meth:`Engine.release`: for every
