@@ -56,6 +56,7 @@ from .transport import Inbox, Transport, ZenohTransport
 
 log = logging.getLogger("radical.node")
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
+QUEUE_BYTES = 64 << 20  # default byte bound of the input FIFO (payload bytes waiting)
 
 
 def packb(msg: Any) -> bytes:
@@ -82,6 +83,7 @@ class Vehicle:
         self.lock = threading.Lock()  # guards the counters below (read by status/diag)
         self.received: dict[str, int] = defaultdict(int)
         self.overflow: dict[str, int] = defaultdict(int)
+        self.overflow_bytes: dict[str, int] = defaultdict(int)
         self.fed: dict[str, int] = defaultdict(int)  # loop thread only
         self.commands_applied = 0
         self.published: dict[str, int] = defaultdict(int)
@@ -116,9 +118,12 @@ class Vehicle:
     def node_info(self) -> dict[str, Any]:
         with self.lock:
             received, overflow = dict(self.received), dict(self.overflow)
+            overflow_bytes = dict(self.overflow_bytes)
         n = self.node
         return {"received": received, "fed": dict(self.fed), "queue_overflow": overflow,
+                "queue_overflow_bytes": overflow_bytes,
                 "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
+                "queue_bytes": n.queue_bytes, "queue_bytes_used": n.queue_bytes_used(),
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
@@ -183,8 +188,9 @@ class FilterNode:
     release what a vehicle holds for reordering once no input came for that long (wall time;
     None: only at an end-of-stream marker or end_stream command; docs/node.md, "End of stream").
     max_payload_bytes: the largest input payload taken (None: the processors' own bound).
-    queue_bytes: the byte bound of the input FIFO where the transport can keep one (in memory;
-    a Zenoh FIFO counts samples only; None: no byte bound).
+    queue_bytes: the byte bound of the input FIFO (payload bytes waiting; a full FIFO drops and
+    counts ``queue_overflow`` / ``queue_overflow_bytes``; None: bounded in samples only, and a
+    Zenoh FIFO is then the pulled ``FifoChannel``; docs/node.md "Losses and bounds").
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
@@ -196,11 +202,11 @@ class FilterNode:
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
                  timing: LoopTiming | None = None, rt_priority: int | None = None,
                  idle_release_s: float | None = None, max_payload_bytes: int | None = None,
-                 queue_bytes: int | None = 256 << 20):
+                 queue_bytes: int | None = QUEUE_BYTES):
         if not processors:
             raise ValueError("at least one vehicle is needed")
-        if queue_size < 1 or checkpoint_every_s <= 0:
-            raise ValueError("queue_size must be ≥ 1 and checkpoint_every_s > 0")
+        if queue_size < 1 or checkpoint_every_s <= 0 or (queue_bytes is not None and queue_bytes < 1):
+            raise ValueError("queue_size, queue_bytes must be ≥ 1 and checkpoint_every_s > 0")
         if rt_priority is not None and not 1 <= rt_priority <= 99:
             raise ValueError(f"rt_priority must be 1..99, got {rt_priority}")
         if idle_release_s is not None and not idle_release_s > 0:
@@ -487,7 +493,8 @@ class FilterNode:
         assert self._inbox is not None
         dropped = self._inbox.take_dropped()
         if dropped:
-            self._report_overflows(dropped)
+            take_bytes = getattr(self._inbox, "take_dropped_bytes", None)
+            self._report_overflows(dropped, nbytes=take_bytes() if take_bytes else None)
         take_oversize = getattr(self._inbox, "take_oversize", None)
         oversize = take_oversize() if take_oversize is not None else None
         if oversize:
@@ -515,7 +522,7 @@ class FilterNode:
         self._next_ckpt = self._mono() + self.checkpoint_every_s
 
     def _report_overflows(self, dropped: dict[str, int], reason: str = "queue_overflow",
-                          what: str = "queue full") -> None:
+                          what: str = "queue full", nbytes: dict[str, int] | None = None) -> None:
         for key, n in dropped.items():
             v = self.vehicles.get(key.split("/", 2)[1])
             topic = key[len(v.prefix):] if v is not None else ""
@@ -524,8 +531,14 @@ class FilterNode:
             if reason == "queue_overflow":
                 with v.lock:
                     v.overflow[topic] += n
+                    v.overflow_bytes[topic] += (nbytes or {}).get(key, 0)
             _note_reject(v.sp, "input", reason, f"{what}: {n} message(s) dropped", count=n)
             log.warning("%s: %s, %d %s message(s) dropped", v.name, what, n, topic)
+
+    def queue_bytes_used(self) -> int | None:
+        """Payload bytes waiting in the input FIFO (None: a FIFO without a byte count)."""
+        used = getattr(self._inbox, "queued_bytes", None)
+        return int(used()) if used is not None else None
 
     def queue_depth(self) -> int | None:
         """Samples waiting in the input FIFO. A Zenoh FIFO does not tell: 0 while the loop has
