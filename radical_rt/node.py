@@ -47,6 +47,7 @@ from . import checkpoint as ckpt
 from . import commands
 from .batch import make_processor, make_summary
 from .eos import EOS_TOPIC, decode_eos
+from .link_watch import LinkWatch, check_links, input_seen
 from .node_clock import ClockNotice
 from .node_timing import LoopTiming
 from .packets import InputError
@@ -94,6 +95,7 @@ class Vehicle:
         self.eos_seen = self.reported_lost = self.idle_releases = 0
         self.last_input_mono = 0.0
         self.holding = False  # inputs taken since the last release of everything
+        self.link = LinkWatch(node.stale_after_s) if node.stale_after_s else None
 
     # ---- called by commands.apply (filter loop thread)
     def status(self) -> dict[str, Any]:
@@ -127,6 +129,7 @@ class Vehicle:
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
+                "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,
                 "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
                 "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
@@ -191,6 +194,9 @@ class FilterNode:
     queue_bytes: the byte bound of the input FIFO (payload bytes waiting; a full FIFO drops and
     counts ``queue_overflow`` / ``queue_overflow_bytes``; None: bounded in samples only, and a
     Zenoh FIFO is then the pulled ``FifoChannel``; docs/node.md "Losses and bounds").
+    stale_after_s: a vehicle whose stream was active and that sent no input for this long (wall
+    time) has lost its link: LINK_LOSS, ``link_losses`` (:mod:`radical_rt.link_watch`; None: no
+    watch).
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
@@ -202,7 +208,7 @@ class FilterNode:
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
                  timing: LoopTiming | None = None, rt_priority: int | None = None,
                  idle_release_s: float | None = None, max_payload_bytes: int | None = None,
-                 queue_bytes: int | None = QUEUE_BYTES):
+                 queue_bytes: int | None = QUEUE_BYTES, stale_after_s: float | None = None):
         if not processors:
             raise ValueError("at least one vehicle is needed")
         if queue_size < 1 or checkpoint_every_s <= 0 or (queue_bytes is not None and queue_bytes < 1):
@@ -211,7 +217,10 @@ class FilterNode:
             raise ValueError(f"rt_priority must be 1..99, got {rt_priority}")
         if idle_release_s is not None and not idle_release_s > 0:
             raise ValueError("idle_release_s must be > 0 (None: never)")
+        if stale_after_s is not None and not stale_after_s > 0:
+            raise ValueError("stale_after_s must be > 0 (None: no link watch)")
         self.rt_priority, self.idle_release_s = rt_priority, idle_release_s
+        self.stale_after_s = stale_after_s
         self.transport = transport
         self.vehicles = {name: Vehicle(self, name, sp) for name, sp in processors.items()}
         if max_payload_bytes is not None:  # the size bound of every vehicle's inputs
@@ -388,6 +397,8 @@ class FilterNode:
         if v is None:  # a vehicle this node does not serve
             return
         topic = key[len(v.prefix):]
+        if topic in INPUT_TOPICS or topic == EOS_TOPIC:
+            input_seen(self, v, self._mono())
         if topic not in INPUT_TOPICS:
             if topic == EOS_TOPIC:
                 self._end_of_stream(v, data)
@@ -413,6 +424,8 @@ class FilterNode:
         lost = sum(max(0, n - (received.get(t, 0) - v.at_eos.get(t, 0))) for t, n in counts.items())
         v.at_eos = received
         v.eos_seen += 1
+        if v.link is not None:
+            v.link.ended()
         if lost:
             v.reported_lost += lost
             v.sp.note_reported_loss(lost)
@@ -488,8 +501,8 @@ class FilterNode:
                 log.warning("%s: cannot publish %s: %s", v.name, topic, exc)
 
     def _housekeeping(self, checkpoint: bool = True) -> None:
-        """Between messages (and on the idle ticks): report the inputs the FIFO dropped, and
-        write the periodic checkpoint."""
+        """Between messages (and on the idle ticks): report the inputs the FIFO dropped, watch
+        the links, and write the periodic checkpoint."""
         assert self._inbox is not None
         dropped = self._inbox.take_dropped()
         if dropped:
@@ -499,6 +512,8 @@ class FilterNode:
         oversize = take_oversize() if take_oversize is not None else None
         if oversize:
             self._report_overflows(oversize, "too_large", "payload over the size bound")
+        if self.stale_after_s is not None:
+            check_links(self, self._mono())
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
             self._periodic_checkpoint()
 
