@@ -124,7 +124,6 @@ def _trackers(v: Any, trk_seq: int) -> list[tuple]:
 
 def check(m: Any, sp) -> dict[str, Any]:
     """Validate a :func:`capture` value against ``sp``'s engine; the value for ``set_state``."""
-    from .fdi import Snapshot  # noqa: F401  (the FDI is loaded with the engine anyway)
     from .fdi_detect import ParityDetector
     from .fdi_hypotheses import HypothesisBank
 
@@ -181,7 +180,7 @@ def check(m: Any, sp) -> dict[str, Any]:
     if not isinstance(snaps, list) or len(snaps) > 1000:
         raise cv.CheckpointFieldError(f"{w}.snaps: expected a list of at most 1000 snapshots")
     st["snaps"] = [_snapshot(s, f"{w}.snaps[{i}]", eng) for i, s in enumerate(snaps)]
-    if any(b["t"] < a["t"] for a, b in zip(st["snaps"], st["snaps"][1:])):
+    if any(b["t"] < a["t"] for a, b in zip(st["snaps"], st["snaps"][1:], strict=False)):
         raise cv.CheckpointFieldError(f"{w}.snaps: must be in time order")
     d = cv.need(m, "det", w)
     if d is None:

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 from statistics import NormalDist
+from typing import Any
 
 # Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
 PERSIST_M = 3  # consecutive χ² exceedances of the persistence test
