@@ -87,3 +87,16 @@ def vehicle_of(key: str) -> tuple[str, str] | None:
     if len(parts) < 3 or parts[0] != "radical" or not VEHICLE_RE.match(parts[1]):
         return None
     return parts[1], parts[2]
+
+
+def excitation_text(ex: dict | None) -> str:
+    """One line from diag's ``excitation`` map (docs/contract_extensions.md): the window, the
+    rotation in it, the information gain per group (ln σ ratio), and the groups not excited."""
+    if not ex:
+        return ""
+    gains = " ".join(f"{g} {v['gain']:+.2f}" for g, v in ex["groups"].items())
+    bad = ex.get("not_excited") or []
+    tail = f"  NOT EXCITED: {', '.join(bad)}" if bad else ""
+    if ex.get("rotate_about"):
+        tail += f"  (axes not yet turned about: {', '.join(ex['rotate_about'])})"
+    return f"{ex['window_s']:.0f} s, rotated {ex['rotation_deg']:.1f}°; gain {gains}{tail}"

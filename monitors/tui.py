@@ -22,7 +22,7 @@ from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.widgets import DataTable, Footer, Header, Static
 
-from monitors.common import flag_label
+from monitors.common import excitation_text, flag_label
 from monitors.live import TOPICS, LatestStore, pick_vehicle
 from monitors.view import (
     clock_lines,
@@ -159,6 +159,10 @@ class MonitorApp(App):
         line.append("\nflags ")
         serious = [n for n in names.split(", ") if n not in BENIGN and n not in ("-", "?")]
         line.append(names, style="bold red" if serious else "green")
+        ex = excitation_text((snaps["diag"].msg or {}).get("excitation"))
+        if ex:
+            line.append("\nexcitation ")
+            line.append(ex, style="bold yellow" if "NOT EXCITED" in ex else "")
         status.update(line)
 
         pk = self.query_one("#packets", DataTable)

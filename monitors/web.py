@@ -28,7 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from monitors.common import FLAG_BITS, GROUP_LABELS, ORDER, PAPER_UNITS, element_names, flag_label
+from monitors.common import (
+    FLAG_BITS,
+    GROUP_LABELS,
+    ORDER,
+    PAPER_UNITS,
+    element_names,
+    excitation_text,
+    flag_label,
+)
 from monitors.live import TOPICS, LatestStore, pick_vehicle
 from monitors.view import clock_lines, counter_lines, fault_line, tlm_columns, tlm_row, tlm_shape
 
@@ -275,6 +283,10 @@ def status_html(store: LatestStore, v: str) -> str:
         f"<tr><td>{html.escape(tp)}</td><td>{s.count}</td><td>{s.rate_hz:.1f}</td>"
         f"<td>{'-' if s.age_s is None else f'{s.age_s:.2f}'}</td></tr>"
         for tp, s in snaps.items())
+    ex = excitation_text((snaps["diag"].msg or {}).get("excitation"))
+    if ex:  # diag's excitation map (docs/design.md §5)
+        flag_html += (f"<br>excitation <span id='excitation' style='color:"
+                      f"{'#c60' if 'NOT EXCITED' in ex else 'inherit'}'>{html.escape(ex)}</span>")
     return (f"<div style='font-size:13px'>{' &nbsp; '.join(parts)}<br>flags {flag_html}</div>"
             "<table style='font-size:11px;margin-top:4px'><tr><th>topic</th><th>count</th>"
             "<th>rate Hz</th><th>age s (receiver clock)</th></tr>" + rows + "</table>")

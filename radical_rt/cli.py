@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("perf.cli", "run the benchmark suite"),
     "export": ("monitors.fox_export", "re-encode an archive for Foxglove / Lichtblick (json)"),
     "allan": ("monitors.allan", "Allan deviation and gyro noise parameters from a static segment"),
+    "design": ("radical_rt.design.cli", "covariance analysis and optimization of a calibration maneuver"),
 }
 
 

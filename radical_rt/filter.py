@@ -26,6 +26,7 @@ import numpy as np
 
 from . import ud
 from .engine_state import EngineState, _psl
+from .excitation import ExcitationMonitor
 from .fastpath_glue import _ST_EDITED_BIT, _ST_KIND, FastRelease
 from .fdi import FaultMonitor
 from .flags import Flag
@@ -59,6 +60,8 @@ class Engine(FastRelease, EngineState):
         self.cold_start()
         self._pack()
         self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
+        self.excitation = ExcitationMonitor(  # radical_rt.excitation; None: off
+            self.layout, triads=(geometry.W, geometry.U, geometry.V))
 
     # ---------------------------------------------------------------- configuration
     def params_changed(self) -> None:
@@ -149,7 +152,15 @@ class Engine(FastRelease, EngineState):
         self._check(status)
         return kappa
 
+    def _covariance(self) -> np.ndarray:
+        """P (ns, ns) from the UD factors (outputs and the excitation monitor only)."""
+        P = np.empty((self.ns, self.ns))
+        ud.ud_to_cov(self.U, self.d, P)
+        return P
+
     def _begin_attitude_init(self) -> None:
+        if getattr(self, "excitation", None) is not None:
+            self.excitation.clear()
         self.mode = "init"
         self.att_valid = False
         self._reset_window()
@@ -276,6 +287,10 @@ class Engine(FastRelease, EngineState):
         self._update_lock_latch()
         if self.acc_i[1] >= self.si.parity_window:
             self._queue_parity()
+            ex = self.excitation  # every 10 s, at the same point on both paths
+            if ex is not None and ex.due(self.t):
+                self.flags = ex.update(self.t, self._covariance(), self.q, self.conv_var,
+                                       self.flags)
         while self.parity_queue and self.parity_queue[0][0] <= self.t - self.si.parity_lag_s:
             self._parity_update(*self.parity_queue.popleft()[1:])
 

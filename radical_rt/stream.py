@@ -421,7 +421,8 @@ class StreamProcessor(StreamGuards):
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),
                 "latency": field("latency"), "fdi": field("fdi"),
-                "ud": {"d_min": float(e.d.min()), "d_max": float(e.d.max())}}
+                "ud": {"d_min": float(e.d.min()), "d_max": float(e.d.max())},
+                "excitation": e.excitation.report() if e.excitation is not None else None}
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:
         out, self._out = self._out, []

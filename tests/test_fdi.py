@@ -284,7 +284,8 @@ def test_bookkeeping_runs_at_each_parity_sum_and_at_least_every_check_max(short_
     s = process([str(short_fault)], None)
     assert "GYRO_B_FAILED" in s["flags"]
     t_run = np.array([t for t, _ in runs])
-    assert np.diff(t_run).max() <= CHECK_MAX_S + 0.1 + 1e-9  # one window of slack
+    # one window of slack: prop_window samples of the SIRU's true period (ε of the scenario)
+    assert np.diff(t_run).max() <= CHECK_MAX_S + 0.1 * (1 + 1e-3)
     # before the fault: one bookkeeping per sum, at the sum's own window close
     early = [t for t in sums if t < 1100.0]
     assert len(early) > 80
