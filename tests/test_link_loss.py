@@ -37,6 +37,11 @@ class FakeClock:
         return self.now
 
 
+def _idle(mn: MemNode) -> None:
+    """Everything fed (generous: the first feed may compile the Numba kernels on a cold cache)."""
+    assert mn.node.wait_idle(300)
+
+
 def _faults(mn: MemNode) -> list[int]:
     return [m["flags"] for k, m in mn.outputs if k.endswith("/fault")]
 
@@ -49,7 +54,7 @@ def test_link_loss_in_memory(archive):
         half = len(msgs) // 2
         for topic, _, data in msgs[:half]:
             mn.publish("lk", topic, data)
-        mn.idle()
+        _idle(mn)
         sp = mn.sp("lk")
         assert not sp.flags & LINK
         clock.now += 2.9  # under the stale time: nothing
@@ -66,12 +71,12 @@ def test_link_loss_in_memory(archive):
         assert sp.counters()["link_losses"] == 1
         for topic, _, data in msgs[half:]:
             mn.publish("lk", topic, data)
-        mn.idle()
+        _idle(mn)
         c = sp.counters()
         assert not sp.flags & LINK and not _faults(mn)[-1] & LINK  # cleared, and published so
         assert c["link_losses"] == 1 and c["link_lost_s"] == pytest.approx(13.1)
         mn.publish("lk", "eos", msgpack.packb(make_eos({}, "none")))
-        mn.idle()
+        _idle(mn)
         clock.now += 100.0  # after a marker, silence is expected
         time.sleep(3 * FilterNode.TICK_S)
         assert not sp.flags & LINK and sp.counters()["link_losses"] == 1
