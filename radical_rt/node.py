@@ -504,10 +504,10 @@ class FilterNode:
         """Between messages (and on the idle ticks): report the inputs the FIFO dropped, watch
         the links, and write the periodic checkpoint."""
         assert self._inbox is not None
-        dropped = self._inbox.take_dropped()
+        take_drops = getattr(self._inbox, "take_drops", None)  # counts with their bytes
+        dropped, nbytes = take_drops() if take_drops else (self._inbox.take_dropped(), None)
         if dropped:
-            take_bytes = getattr(self._inbox, "take_dropped_bytes", None)
-            self._report_overflows(dropped, nbytes=take_bytes() if take_bytes else None)
+            self._report_overflows(dropped, nbytes=nbytes)
         take_oversize = getattr(self._inbox, "take_oversize", None)
         oversize = take_oversize() if take_oversize is not None else None
         if oversize:

@@ -210,10 +210,11 @@ class _MemInbox:
             out, self._dropped = self._dropped, {}
         return out
 
-    def take_dropped_bytes(self) -> dict[str, int]:
-        """Payload bytes of the samples dropped since the last call, per key."""
+    def take_drops(self) -> tuple[dict[str, int], dict[str, int]]:
+        """(samples, payload bytes) dropped since the last call, per key, taken together."""
         with self._cond:
-            out, self._dropped_bytes = self._dropped_bytes, {}
+            out = self._dropped, self._dropped_bytes
+            self._dropped, self._dropped_bytes = {}, {}
         return out
 
     def queued_bytes(self) -> int:

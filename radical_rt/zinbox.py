@@ -11,7 +11,7 @@ at its length *before* copying it into Python:
 * a payload that does not fit (``capacity`` samples or ``capacity_bytes`` payload bytes already
   waiting) makes the session's receive thread wait up to ``wait_s`` for room (back-pressure,
   as a full ``FifoChannel`` did), then is dropped and counted per key, in messages
-  (``take_dropped``) and bytes (``take_dropped_bytes``); a payload larger than the whole byte
+  (``take_dropped``, or both with ``take_drops``) and bytes; a payload larger than the whole byte
   budget is dropped at once;
 * otherwise it is copied (``bytes``) and queued; the consumer pulls it with ``try_recv`` /
   ``recv`` exactly as from the in-memory FIFO.
