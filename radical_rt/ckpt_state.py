@@ -4,7 +4,8 @@
 plus everything between two events (time-update and parity accumulators, pending parameter
 noise, the queued lagged parity sums, the lock latch), the SIRU clock's full state (phase and
 lock included), the samples held back for reordering (gyro and tracker queues), the packet
-schedules and the FDI outcome. :func:`check` validates every field of such a state against the
+schedules and the FDI outcome and running state (history, snapshots, alarm, bank:
+:mod:`radical_rt.ckpt_fdi`). :func:`check` validates every field of such a state against the
 node's own processor and returns a :class:`Plan` — nothing is touched — and :func:`apply` puts a
 checked plan into the processor. Field errors are :class:`~radical_rt.ckpt_validate.
 CheckpointFieldError` naming the field.
@@ -18,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from . import ckpt_fdi
 from . import ckpt_validate as cv
 from . import clock_layout as L
 from .flags import Flag
@@ -76,7 +78,8 @@ def capture(sp: StreamProcessor) -> dict[str, Any]:
         "fdi": None if fdi is None else {
             "state": fdi.state, "failed": sorted(int(g) for g in fdi.failed_by_fdi),
             "flagged_only": sorted(int(g) for g in fdi.flagged_only),
-            "counts": {str(k): int(v) for k, v in fdi.counts.items()}},
+            "counts": {str(k): int(v) for k, v in fdi.counts.items()},
+            "monitor": ckpt_fdi.capture(fdi)},
     }
 
 
@@ -151,7 +154,7 @@ def check(state: Any, sp: StreamProcessor) -> Plan:
     plan = Plan(a, s, queue, _check_clock(cv.need(state, "clock", "state"), sp), {}, {}, {})
     _check_queues(cv.need(state, "queues", "state"), sp, plan)
     plan.schedule = _check_schedule(cv.need(state, "schedule", "state"), sp)
-    plan.fdi = _check_fdi(state.get("fdi"), n)
+    plan.fdi = _check_fdi(state.get("fdi"), n, sp)
     return plan
 
 
@@ -251,15 +254,21 @@ def _check_schedule(sd: Any, sp: StreamProcessor) -> dict[str, Any]:
     return out
 
 
-def _check_fdi(f: Any, n: int) -> dict[str, Any] | None:
+def _check_fdi(f: Any, n: int, sp: StreamProcessor) -> dict[str, Any] | None:
+    """The FDI outcome, and the monitor's running state where the checkpoint has it
+    (:mod:`radical_rt.ckpt_fdi`; checkpoints written before it carry the outcome only)."""
     if f is None:
         return None
+    monitor = None
+    if isinstance(f, dict) and f.get("monitor") is not None and sp.engine.fdi is not None:
+        monitor = ckpt_fdi.check(f["monitor"], sp)
     st = cv.choice(cv.need(f, "state", "fdi"), "fdi.state", FDI_STATES)
     failed = cv.num_list(cv.need(f, "failed", "fdi"), "fdi.failed", None, 0, n - 1, integer=True)
     only = cv.num_list(cv.need(f, "flagged_only", "fdi"), "fdi.flagged_only", None, 0, n - 1,
                        integer=True)
     return {"state": st, "failed": {int(g) for g in failed}, "flagged_only": {int(g) for g in only},
-            "counts": cv.counter_map(cv.need(f, "counts", "fdi"), "fdi.counts")}
+            "counts": cv.counter_map(cv.need(f, "counts", "fdi"), "fdi.counts"),
+            "monitor": monitor}
 
 
 # ------------------------------------------------------------------------------------ apply
@@ -312,8 +321,10 @@ def apply(sp: StreamProcessor, plan: Plan) -> None:
     sp.last_reject_t = sch.get("last_reject_t", -math.inf)
     sp._packet_wake = None
     f = plan.fdi
-    if f is not None and e.fdi is not None:
-        # the FDI's sample history is not carried: an alarm in progress starts over
+    if f is not None and e.fdi is not None and f.get("monitor") is not None:
+        e.fdi.set_state(e, f["monitor"])  # history, snapshots, alarm and bank: it continues
+    elif f is not None and e.fdi is not None:
+        # an older checkpoint without the monitor's history: an alarm in progress starts over
         e.fdi.state = "monitoring" if f["state"] == "alarm" else f["state"]
         e.fdi.failed_by_fdi = set(f["failed"])
         e.fdi.flagged_only = set(f["flagged_only"])

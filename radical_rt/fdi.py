@@ -426,6 +426,50 @@ class FaultMonitor:
         bank.decision(self.llr_threshold(eng))
         return bank.k > 0
 
+    # ------------------------------------------------------------------ checkpoints
+    _SCALARS = ("state", "last_nu", "last_rho", "_next_check", "_sum_seen", "_t_decided",
+                "trk_seq")
+
+    def get_state(self) -> dict[str, Any]:
+        """Everything the monitor carries between two hooks (numpy arrays and plain values;
+        radical_rt.ckpt_fdi encodes and validates it): a resume continues an alarm in progress
+        with the same history, snapshots and bank."""
+        b = self.bank
+        return {**{k: getattr(self, k) for k in self._SCALARS},
+                "gen": None if self.gen is None else list(self.gen), "alarm": self.alarm,
+                "alarm_is_last": bool(self.alarms) and self.alarm is self.alarms[-1],
+                "alarms": self.alarms, "isolations": self.isolations,
+                "parity_log": np.array(self.parity_log, np.float64).reshape(-1, 2),
+                "failed": sorted(self.failed_by_fdi), "flagged_only": sorted(self.flagged_only),
+                "counts": dict(self.counts), "gbuf": self.gbuf.get_state(),
+                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk],
+                "snaps": [vars(s) for s in self.snaps],
+                "det": None if self.det is None else self.det.get_state(),
+                "bank": None if b is None else {"snap": vars(b.snap), "t_alarm": b.t_alarm,
+                                                **b.get_state()}}
+
+    def set_state(self, eng, st: dict[str, Any]) -> None:
+        """Put a validated :meth:`get_state` back (after the engine's own state)."""
+        for k in self._SCALARS:
+            setattr(self, k, st[k])
+        self.gen = None if st["gen"] is None else tuple(st["gen"])
+        self.alarms, self.isolations = list(st["alarms"]), list(st["isolations"])
+        self.alarm = self.alarms[-1] if st["alarm_is_last"] else st["alarm"]
+        self.parity_log = deque((float(t0), float(z)) for t0, z in st["parity_log"])
+        self.failed_by_fdi, self.flagged_only = set(st["failed"]), set(st["flagged_only"])
+        self.counts.update(st["counts"])
+        self.gbuf.set_state(st["gbuf"])
+        self.trk = deque(st["trk"])
+        self.snaps = deque(Snapshot(**s) for s in st["snaps"])
+        self._th_key, self.det = None, None
+        if st["det"] is not None:
+            self._detector(eng).set_state(st["det"])
+        self.bank = None
+        if st["bank"] is not None:
+            bs = dict(st["bank"])
+            self.bank = self.bank_type(eng, Snapshot(**bs.pop("snap")), bs.pop("t_alarm"))
+            self.bank.set_state(bs)
+
     # ------------------------------------------------------------------ outputs
     def detail(self) -> dict[str, Any]:
         """Plain-type state for the ``fault`` message detail and diagnostics."""

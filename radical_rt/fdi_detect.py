@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import Any
 
 # Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
 PERSIST_M = 3  # consecutive χ² exceedances of the persistence test
@@ -103,6 +104,19 @@ class ParityDetector:
         self.run, self.t_run = 0, math.nan
         self.quiet = 0
         self.guarded = False
+
+    STATE = ("s_pos", "s_neg", "t_pos", "t_neg", "run", "t_run", "quiet", "guarded")
+
+    def get_state(self) -> dict[str, Any]:
+        """The running statistics (checkpoints; NaN times as None)."""
+        return {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                for k in self.STATE for v in (getattr(self, k),)}
+
+    def set_state(self, st: dict[str, Any]) -> None:
+        """Put :meth:`get_state` values back (validated by the caller)."""
+        for k in self.STATE:
+            v = st[k]
+            setattr(self, k, math.nan if v is None else v)
 
     def update(self, nu: float, rho: float, t0: float) -> tuple[str, float] | None:
         th = self.th

@@ -87,6 +87,20 @@ class SampleBuffer:
             return None
         return self._f, self._i, self._b, a, z
 
+    def get_state(self) -> dict[str, np.ndarray]:
+        """The rows in use, copied (checkpoints): f (m, 3 + n), status (m,), bridged (m,)."""
+        s = slice(self.i0, self.end)
+        return {"f": self._f[s].copy(), "status": self._i[s].copy(), "bridged": self._b[s].copy()}
+
+    def set_state(self, st: dict[str, np.ndarray]) -> None:
+        """Put :meth:`get_state` rows back (validated by the caller: time order, shapes)."""
+        f = np.asarray(st["f"], np.float64)
+        self.clear()
+        if len(f):
+            self._f, self._i = f.copy(), np.asarray(st["status"], np.int64).copy()
+            self._b = np.asarray(st["bridged"], np.bool_).copy()
+            self.end = len(f)
+
     def blocks(self):
         """(f, status, bridged, i0, end): the blocks of :meth:`span` and the rows in use."""
         return self._f, self._i, self._b, self.i0, self.end

@@ -79,6 +79,26 @@ class HypothesisBank:
         self._decided: tuple = (None, None)  # ((k, llr_min), decision) of the last decision
         self.bad_s = 0  # hypothesis-samples whose S was not positive definite (ll = −inf)
 
+    #: what changes as the bank runs (the rest derives from the snapshot): checkpoints
+    STATE_ARRAYS = ("q", "omega", "Ptt", "Ptp", "Ppp", "ll", "nis", "nis_k", "logdet_k",
+                    "undetermined", "tlast", "Phi_aa", "Phi_ap", "Q_aa")
+    STATE_SCALARS = ("k", "t_last", "trk_seq", "bad_s")
+
+    def get_state(self) -> dict[str, Any]:
+        """The running state (copies; the snapshot and t_alarm are the caller's)."""
+        out: dict[str, Any] = {k: getattr(self, k).copy() for k in self.STATE_ARRAYS}
+        out.update({k: getattr(self, k) for k in self.STATE_SCALARS})
+        return out
+
+    def set_state(self, st: dict[str, Any]) -> None:
+        """Put :meth:`get_state` values into a bank built from the same snapshot (shapes and
+        dtypes checked by the caller against this bank's own)."""
+        for k in self.STATE_ARRAYS:
+            getattr(self, k)[...] = st[k]
+        for k in self.STATE_SCALARS:
+            setattr(self, k, st[k])
+        self._decided = (None, None)
+
     # ------------------------------------------------------------------ kernels
     def _cal(self, eng) -> tuple:
         return (self.masks, self.xp, self.A, eng.geo.W, eng.geo.U, eng.geo.V, self.Minv, self.Gp,

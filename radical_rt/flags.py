@@ -26,6 +26,7 @@ class Flag(IntFlag):
     ST1_CONFLICT = 1 << 16  # a second source on the st1 topic: ST1 samples not used
     ST2_CONFLICT = 1 << 17  # a second source on the st2 topic: ST2 samples not used
     INPUT_GAP = 1 << 18  # input lost: a gap in the siru bus times, a jump, a loss at end of stream
+    LINK_LOSS = 1 << 19  # no input for --stale-after s of wall time while a stream was active
     EXCITATION_LOW = 1 << 20  # a maneuver is under way but some unconverged group learns nothing
 
 

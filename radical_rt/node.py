@@ -47,6 +47,7 @@ from . import checkpoint as ckpt
 from . import commands
 from .batch import make_processor, make_summary
 from .eos import EOS_TOPIC, decode_eos
+from .link_watch import LinkWatch, check_links, input_seen
 from .node_clock import ClockNotice
 from .node_timing import LoopTiming
 from .packets import InputError
@@ -56,6 +57,7 @@ from .transport import Inbox, Transport, ZenohTransport
 
 log = logging.getLogger("radical.node")
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
+QUEUE_BYTES = 64 << 20  # default byte bound of the input FIFO (payload bytes waiting)
 
 
 def packb(msg: Any) -> bytes:
@@ -82,6 +84,7 @@ class Vehicle:
         self.lock = threading.Lock()  # guards the counters below (read by status/diag)
         self.received: dict[str, int] = defaultdict(int)
         self.overflow: dict[str, int] = defaultdict(int)
+        self.overflow_bytes: dict[str, int] = defaultdict(int)
         self.fed: dict[str, int] = defaultdict(int)  # loop thread only
         self.commands_applied = 0
         self.published: dict[str, int] = defaultdict(int)
@@ -92,6 +95,7 @@ class Vehicle:
         self.eos_seen = self.reported_lost = self.idle_releases = 0
         self.last_input_mono = 0.0
         self.holding = False  # inputs taken since the last release of everything
+        self.link = LinkWatch(node.stale_after_s) if node.stale_after_s else None
 
     # ---- called by commands.apply (filter loop thread)
     def status(self) -> dict[str, Any]:
@@ -116,12 +120,16 @@ class Vehicle:
     def node_info(self) -> dict[str, Any]:
         with self.lock:
             received, overflow = dict(self.received), dict(self.overflow)
+            overflow_bytes = dict(self.overflow_bytes)
         n = self.node
         return {"received": received, "fed": dict(self.fed), "queue_overflow": overflow,
+                "queue_overflow_bytes": overflow_bytes,
                 "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
+                "queue_bytes": n.queue_bytes, "queue_bytes_used": n.queue_bytes_used(),
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
+                "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,
                 "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
                 "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
@@ -183,8 +191,12 @@ class FilterNode:
     release what a vehicle holds for reordering once no input came for that long (wall time;
     None: only at an end-of-stream marker or end_stream command; docs/node.md, "End of stream").
     max_payload_bytes: the largest input payload taken (None: the processors' own bound).
-    queue_bytes: the byte bound of the input FIFO where the transport can keep one (in memory;
-    a Zenoh FIFO counts samples only; None: no byte bound).
+    queue_bytes: the byte bound of the input FIFO (payload bytes waiting; a full FIFO drops and
+    counts ``queue_overflow`` / ``queue_overflow_bytes``; None: bounded in samples only, and a
+    Zenoh FIFO is then the pulled ``FifoChannel``; docs/node.md "Losses and bounds").
+    stale_after_s: a vehicle whose stream was active and that sent no input for this long (wall
+    time) has lost its link: LINK_LOSS, ``link_losses`` (:mod:`radical_rt.link_watch`; None: no
+    watch).
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
@@ -196,16 +208,19 @@ class FilterNode:
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
                  timing: LoopTiming | None = None, rt_priority: int | None = None,
                  idle_release_s: float | None = None, max_payload_bytes: int | None = None,
-                 queue_bytes: int | None = 256 << 20):
+                 queue_bytes: int | None = QUEUE_BYTES, stale_after_s: float | None = None):
         if not processors:
             raise ValueError("at least one vehicle is needed")
-        if queue_size < 1 or checkpoint_every_s <= 0:
-            raise ValueError("queue_size must be ≥ 1 and checkpoint_every_s > 0")
+        if queue_size < 1 or checkpoint_every_s <= 0 or (queue_bytes is not None and queue_bytes < 1):
+            raise ValueError("queue_size, queue_bytes must be ≥ 1 and checkpoint_every_s > 0")
         if rt_priority is not None and not 1 <= rt_priority <= 99:
             raise ValueError(f"rt_priority must be 1..99, got {rt_priority}")
         if idle_release_s is not None and not idle_release_s > 0:
             raise ValueError("idle_release_s must be > 0 (None: never)")
+        if stale_after_s is not None and not stale_after_s > 0:
+            raise ValueError("stale_after_s must be > 0 (None: no link watch)")
         self.rt_priority, self.idle_release_s = rt_priority, idle_release_s
+        self.stale_after_s = stale_after_s
         self.transport = transport
         self.vehicles = {name: Vehicle(self, name, sp) for name, sp in processors.items()}
         if max_payload_bytes is not None:  # the size bound of every vehicle's inputs
@@ -382,6 +397,8 @@ class FilterNode:
         if v is None:  # a vehicle this node does not serve
             return
         topic = key[len(v.prefix):]
+        if topic in INPUT_TOPICS or topic == EOS_TOPIC:
+            input_seen(self, v, self._mono())
         if topic not in INPUT_TOPICS:
             if topic == EOS_TOPIC:
                 self._end_of_stream(v, data)
@@ -407,6 +424,8 @@ class FilterNode:
         lost = sum(max(0, n - (received.get(t, 0) - v.at_eos.get(t, 0))) for t, n in counts.items())
         v.at_eos = received
         v.eos_seen += 1
+        if v.link is not None:
+            v.link.ended()
         if lost:
             v.reported_lost += lost
             v.sp.note_reported_loss(lost)
@@ -482,16 +501,19 @@ class FilterNode:
                 log.warning("%s: cannot publish %s: %s", v.name, topic, exc)
 
     def _housekeeping(self, checkpoint: bool = True) -> None:
-        """Between messages (and on the idle ticks): report the inputs the FIFO dropped, and
-        write the periodic checkpoint."""
+        """Between messages (and on the idle ticks): report the inputs the FIFO dropped, watch
+        the links, and write the periodic checkpoint."""
         assert self._inbox is not None
-        dropped = self._inbox.take_dropped()
+        take_drops = getattr(self._inbox, "take_drops", None)  # counts with their bytes
+        dropped, nbytes = take_drops() if take_drops else (self._inbox.take_dropped(), None)
         if dropped:
-            self._report_overflows(dropped)
+            self._report_overflows(dropped, nbytes=nbytes)
         take_oversize = getattr(self._inbox, "take_oversize", None)
         oversize = take_oversize() if take_oversize is not None else None
         if oversize:
             self._report_overflows(oversize, "too_large", "payload over the size bound")
+        if self.stale_after_s is not None:
+            check_links(self, self._mono())
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
             self._periodic_checkpoint()
 
@@ -515,7 +537,7 @@ class FilterNode:
         self._next_ckpt = self._mono() + self.checkpoint_every_s
 
     def _report_overflows(self, dropped: dict[str, int], reason: str = "queue_overflow",
-                          what: str = "queue full") -> None:
+                          what: str = "queue full", nbytes: dict[str, int] | None = None) -> None:
         for key, n in dropped.items():
             v = self.vehicles.get(key.split("/", 2)[1])
             topic = key[len(v.prefix):] if v is not None else ""
@@ -524,8 +546,14 @@ class FilterNode:
             if reason == "queue_overflow":
                 with v.lock:
                     v.overflow[topic] += n
+                    v.overflow_bytes[topic] += (nbytes or {}).get(key, 0)
             _note_reject(v.sp, "input", reason, f"{what}: {n} message(s) dropped", count=n)
             log.warning("%s: %s, %d %s message(s) dropped", v.name, what, n, topic)
+
+    def queue_bytes_used(self) -> int | None:
+        """Payload bytes waiting in the input FIFO (None: a FIFO without a byte count)."""
+        used = getattr(self._inbox, "queued_bytes", None)
+        return int(used()) if used is not None else None
 
     def queue_depth(self) -> int | None:
         """Samples waiting in the input FIFO. A Zenoh FIFO does not tell: 0 while the loop has

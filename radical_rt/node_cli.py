@@ -57,6 +57,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--queue-size", type=int, default=4096, metavar="N",
                    help="input FIFO capacity in samples (default 4096; full: back-pressure)")
+    p.add_argument("--queue-bytes", type=int, default=64 << 20, metavar="BYTES",
+                   help="input FIFO bound in payload bytes (default 64 MiB; full: wait 1 s, then "
+                        "drop and count; 0: no byte bound, the pulled Zenoh FIFO)")
+    p.add_argument("--stale-after", type=float, default=3.0, metavar="S",
+                   help="no input for S s of wall time while a stream is active: LINK_LOSS "
+                        "(default 3; 0: no link watch)")
     p.add_argument("--idle-release", type=float, default=10.0, metavar="S",
                    help="release the samples held for reordering after S s of wall time without "
                         "input (default 10; 0: only at an end-of-stream marker)")
@@ -95,6 +101,12 @@ def _check(args: argparse.Namespace) -> str | None:
         return "--queue-size must be ≥ 1"
     if not args.idle_release >= 0:
         return "--idle-release must be ≥ 0"
+    if args.queue_bytes < 0:
+        return "--queue-bytes must be ≥ 0 (0: no byte bound)"
+    if not args.stale_after >= 0:
+        return "--stale-after must be ≥ 0 (0: no link watch)"
+    if 0 < args.queue_bytes < args.max_payload:
+        return "--queue-bytes must be ≥ --max-payload (or 0: no byte bound)"
     if args.max_payload < 1024:
         return "--max-payload must be ≥ 1024"
     if args.rt_priority is not None and not 1 <= args.rt_priority <= 99:
@@ -164,7 +176,9 @@ def run(args: argparse.Namespace) -> int:
                       block_outputs=args.block_outputs, timing=timing,
                       rt_priority=args.rt_priority,
                       idle_release_s=args.idle_release or None,
-                      max_payload_bytes=args.max_payload)
+                      max_payload_bytes=args.max_payload,
+                      queue_bytes=args.queue_bytes or None,
+                      stale_after_s=args.stale_after or None)
     stop = threading.Event()
     got: list[str] = []
 

@@ -26,7 +26,7 @@ from .packets import decode_tracker, unpack
 from .siru_wire import SS_WINDOW
 from .tracker_queue import IN_DUPLICATE, SI_END, SI_HEAD, SS_LAST
 
-_GYRO_GAP, _INPUT_GAP = int(Flag.GYRO_GAP), int(Flag.INPUT_GAP)
+_GYRO_GAP, _INPUT_GAP, _LINK_LOSS = int(Flag.GYRO_GAP), int(Flag.INPUT_GAP), int(Flag.LINK_LOSS)
 _CONFLICT = {1: int(Flag.ST1_CONFLICT), 2: int(Flag.ST2_CONFLICT)}
 MAX_PAYLOAD_BYTES = 1 << 20  # a siru batch of MAX_SIRU_BATCH samples is ≈ 0.6 MB
 
@@ -62,6 +62,7 @@ class StreamGuards:
         self._min_interval_s = tracker_min_interval_s
         self._guard_live = False  # a held flag or a conflict may be on (else no flag to add)
         self.input_gaps, self.input_gap_total_s, self.reported_lost = 0, 0.0, 0
+        self.link_lost, self.link_losses, self.link_lost_s = False, 0, 0.0
 
     @property
     def time_window_s(self) -> float:
@@ -158,6 +159,15 @@ class StreamGuards:
             self._input_gap.set()
             self._guard_live = True
 
+    def note_link_loss(self, lost: bool, length_s: float = 0.0) -> None:
+        """The node found the link lost (no input for its stale time: LINK_LOSS set, counted)
+        or restored after ``length_s`` of wall time (cleared; radical_rt.link_watch)."""
+        if lost and not self.link_lost:
+            self.link_losses += 1
+        elif not lost and self.link_lost:
+            self.link_lost_s += max(0.0, float(length_s))
+        self.link_lost = bool(lost)
+
     def fault_now(self) -> list[tuple[str, dict[str, Any]]]:
         """The fault message due now if the flags changed since the last one (e.g. a loss noted
         at the end of a stream, when no window closes any more)."""
@@ -166,14 +176,14 @@ class StreamGuards:
         return self.take_outputs()
 
     def _guard_flags(self) -> int:
-        e, f = self.engine, 0
+        e, f = self.engine, (_LINK_LOSS if self.link_lost else 0)
         g = e.counters["gyro_gaps"]
         if g != self._gyro_gaps_seen:
             self._gyro_gaps_seen = g
             self._gyro_gap.set()
             self._guard_live = True
         if not self._guard_live:  # the common case: nothing held, no conflict
-            return 0
+            return f
         t = e.t
         if self._gyro_gap.on(t):
             f |= _GYRO_GAP
@@ -207,4 +217,5 @@ class StreamGuards:
         return {"input_gaps": self.input_gaps, "input_gap_s": self.input_gap_total_s,
                 "time_jumps_confirmed": self._jumps.gaps + self._jumps.resets,
                 "input_reported_lost": self.reported_lost,
+                "link_losses": self.link_losses, "link_lost_s": self.link_lost_s,
                 "st1_conflict": c.dropped[1], "st2_conflict": c.dropped[2]}

@@ -156,6 +156,7 @@ class _MemInbox:
         self._items: deque = deque()
         self._cond = threading.Condition()
         self._dropped: dict[str, int] = {}
+        self._dropped_bytes: dict[str, int] = {}
         self._decl: _Decl | None = None
 
     def _room(self, n: int) -> bool:
@@ -169,6 +170,7 @@ class _MemInbox:
                     (self.capacity_bytes is not None and n > self.capacity_bytes)
                     or not self._cond.wait_for(lambda: self._room(n), timeout=self.wait_s)):
                 self._dropped[key] = self._dropped.get(key, 0) + 1
+                self._dropped_bytes[key] = self._dropped_bytes.get(key, 0) + n
                 return
             self._items.append((key, data))
             self.nbytes += n
@@ -207,6 +209,18 @@ class _MemInbox:
         with self._cond:
             out, self._dropped = self._dropped, {}
         return out
+
+    def take_drops(self) -> tuple[dict[str, int], dict[str, int]]:
+        """(samples, payload bytes) dropped since the last call, per key, taken together."""
+        with self._cond:
+            out = self._dropped, self._dropped_bytes
+            self._dropped, self._dropped_bytes = {}, {}
+        return out
+
+    def queued_bytes(self) -> int:
+        """Payload bytes waiting now."""
+        with self._cond:
+            return self.nbytes
 
     def undeclare(self) -> None:
         if self._decl is not None:
@@ -470,10 +484,15 @@ class ZenohTransport:
         pub.put(payload)
 
     def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
-              capacity_bytes: int | None = None, max_payload: int | None = None) -> _ZInbox:
-        """A pulled FIFO of the samples on ``key`` (wait_s is unused: the FIFO back-pressures;
-        capacity_bytes is unused: a Zenoh FIFO counts samples, docs/node.md "Losses and
-        bounds"; payloads over max_payload bytes are dropped without being copied)."""
+              capacity_bytes: int | None = None, max_payload: int | None = None) -> Any:
+        """A FIFO of the samples on ``key``; payloads over max_payload bytes are dropped
+        without being copied. With ``capacity_bytes``: bounded in payload bytes too
+        (:class:`radical_rt.zinbox.ZByteInbox`, a callback subscriber; a full FIFO waits
+        ``wait_s``, then drops and counts). Without: the pulled ``FifoChannel`` (bounded in
+        samples only; a full one back-pressures the session; docs/node.md "Losses and bounds")."""
+        if capacity_bytes is not None:
+            from .zinbox import ZByteInbox
+            return ZByteInbox(self, key, capacity, wait_s, capacity_bytes, max_payload)
         return _ZInbox(self, key, capacity, max_payload)
 
     def queryable(self, key: str, handler: QueryHandler) -> _ZHandle:
