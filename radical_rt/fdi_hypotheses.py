@@ -17,7 +17,24 @@ from typing import Any
 import numpy as np
 
 from . import ud
-from .fdi_bank import bank_flush, bank_propagate, bank_step
+from .fdi_bank import (
+    BF_ARW,
+    BF_GATE,
+    BF_LLR_MIN,
+    BF_REF_STARS,
+    BF_TAU,
+    BI_BAD,
+    BI_END,
+    BI_I0,
+    BI_K,
+    BI_LAT_COL,
+    BI_ON,
+    BI_PHI_COL,
+    BI_STEPS,
+    bank_flush,
+    bank_propagate,
+    bank_step,
+)
 from .fdi_detect import chi2_isf
 from .model import refresh_axes
 
@@ -78,6 +95,9 @@ class HypothesisBank:
         self._sig_src, self._sig = None, np.zeros(3)
         self._decided: tuple = (None, None)  # ((k, llr_min), decision) of the last decision
         self.bad_s = 0  # hypothesis-samples whose S was not positive definite (ll = −inf)
+        self._thr = np.zeros(0)  # chi2_isf(CONSISTENCY_P, 3k) by k (the compiled decision test)
+        self._bi, self._bf = np.zeros(8, np.int64), np.zeros(5)
+        self._kargs: tuple | None = None
 
     # ------------------------------------------------------------------ kernels
     def _cal(self, eng) -> tuple:
@@ -121,6 +141,57 @@ class HypothesisBank:
         bank_flush(self.Phi_aa, self.Phi_ap, self.Q_aa, self.Ptt, self.Ptp, self.Ppp,
                    self._w3p[0], self._w3p[1], self._w33[10])
         return self.q[h], self.omega[h], self.Ptt[h], self.Ptp[h]
+
+    # ------------------------------------------------------------------ inside the compiled release
+    def kernel_args(self, eng, gbuf, hist_end: int, rows: int, llr_min: float) -> tuple:
+        """The tuple bk of :func:`radical_rt.fdi_bank.bank_sample` (the compiled release runs the
+        bank on its valid tracker samples, see radical_rt.fastpath): the gyro history's blocks
+        (rows gbuf.i0..hist_end−1 in use by then; the release appends its samples first), the
+        stacked state and work arrays, phi, st_sigma, the consistency thresholds for up to
+        ``rows`` more samples, and the controls bi, bf (BI_*, BF_*; BI_STEPS, BI_BAD zeroed).
+        Only valid while the bank is caught up with the monitor's tracker buffer."""
+        si = eng.si
+        if si.st_sigma is not self._sig_src:
+            self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
+        k_max = self.k + rows
+        if self._thr.shape[0] <= k_max:
+            thr = np.empty(max(2 * self._thr.shape[0], k_max + 64))
+            thr[:self._thr.shape[0]] = self._thr
+            for k in range(self._thr.shape[0], thr.shape[0]):
+                thr[k] = chi2_isf(CONSISTENCY_P, 3 * k) if k > 0 else 0.0
+            self._thr, self._kargs = thr, None
+        f, st, br, i0, _end = gbuf.blocks()
+        bk = self._kargs
+        if bk is None or bk[0] is not f or bk[1] is not st or bk[2] is not br or bk[32] is not self._sig:
+            pw = self._pw
+            bk = self._kargs = (
+                f, st, br, self.masks, self.xp, self.A, self.Minv, self.Gp, self.N_none, self.q,
+                self.omega, self.tlast, self.undetermined, self.Phi_aa, self.Phi_ap, self.Q_aa,
+                self.Ptt, self.Ptp, self.Ppp, self.ll, self.nis, self.nis_k, self.logdet_k, pw[0],
+                pw[1], pw[2], pw[3], pw[4], self._w33, self._w3p, self._w4, self.phi, self._sig,
+                self._thr, self._bi, self._bf)
+        bi, bf = self._bi, self._bf
+        bi[BI_ON], bi[BI_I0], bi[BI_END] = 1, i0, hist_end
+        bi[BI_PHI_COL], bi[BI_LAT_COL], bi[BI_K] = self.phi_col, self.lat_col, self.k
+        bi[BI_STEPS], bi[BI_BAD] = 0, 0
+        bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
+        bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
+        return bk
+
+    def kernel_done(self) -> int:
+        """Take back what the compiled release did with :meth:`kernel_args`' tuple: the tracker
+        samples it processed (k, trk_seq: the monitor's next samples, which the engine hands to
+        it afterwards), t_last and the bad-S count. Returns the number of samples."""
+        bi = self._bi
+        steps = int(bi[BI_STEPS])
+        bi[BI_ON] = 0
+        if steps:
+            self.k += steps
+            self.trk_seq += steps
+            self.bad_s += int(bi[BI_BAD])
+            self.t_last = float(self.tlast[0])
+        bi[BI_STEPS] = bi[BI_BAD] = 0
+        return steps
 
     # ------------------------------------------------------------------ driver and decision
     def advance(self, eng, gbuf, trk: deque, t_upto: float) -> None:
@@ -171,4 +242,15 @@ class HypothesisBank:
                 "undetermined": [int(x) for x in self.undetermined]}
 
 
-__all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank"]
+def idle_kernel_args() -> tuple:
+    """A stand-in for :meth:`HypothesisBank.kernel_args` when no bank runs in the compiled
+    release: arrays of the same kinds (dimensions, dtypes, C order), empty, with BI_ON = 0."""
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    kinds = [(2, f8), (1, i8), (1, b1), (2, b1)] + [(1, f8)] + [(2, f8)] * 6 + [(1, f8), (1, i8)]
+    kinds += [(3, f8)] * 5 + [(2, f8)] + [(1, f8)] * 4 + [(2, f8)] * 2 + [(1, i8), (1, f8), (1, f8)]
+    kinds += [(3, f8), (3, f8), (2, f8), (1, f8), (1, f8), (1, f8)]
+    arrays = [np.zeros((0,) * nd, dt) for nd, dt in kinds]
+    return (*arrays, np.zeros(8, i8), np.zeros(5, f8))
+
+
+__all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank", "idle_kernel_args"]
