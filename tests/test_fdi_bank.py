@@ -198,13 +198,17 @@ def test_bank_in_the_compiled_release_decides_at_the_same_sample(name, tmp_path,
     iso = f_k.isolations[0]
     span = iso["t_isolated"] - f_k.alarms[0]["t_alarm"]
     # the kernel ran the bank on most samples (the hook: the catch-up from the snapshot at the
-    # alarm's window, and samples at which the flags change); the hook ran at parity sums (1 s),
+    # alarm's window, and samples at which the flags change); the hook ran at the parity sums,
     # the bank's time checks (5-s snapshots) and the decision, not after every tracker sample
     assert steps_k >= 0.75 * iso["trackers"], (steps_k, iso["trackers"])
     print(f"{name}: bank on {iso['trackers']} tracker samples, {steps_k} in the kernel; window "
           f"hooks while it ran {len(calls_k)} (hook running the bank: {len(calls_p)})")
-    assert len(calls_k) <= 1.5 * span + 10 < 0.2 * len(calls_p), (len(calls_k), len(calls_p), span)
-    assert calls_k[-1][1] == calls_p[-1][1] == iso["trackers"]
+    # (about two per second: the close of each parity sum and its lagged update, as in a nominal
+    # run, and the windows at which the engine's flags change, e.g. edited tracker samples)
+    assert len(calls_k) <= 3.0 * span + 10 < 0.2 * len(calls_p), (len(calls_k), len(calls_p), span)
+    # the deciding hook: the kernel had run the bank on the deciding sample; the hook-driven bank
+    # runs it inside that hook (k is recorded before)
+    assert calls_k[-1][1] == iso["trackers"] == calls_p[-1][1] + 1
 
 
 def test_fast_path_hands_over_at_tracker_samples_only_while_a_bank_runs(tmp_path, monkeypatch):
