@@ -196,10 +196,11 @@ class FaultMonitor:
         """The running bank when the engine's compiled release may run it on its valid tracker
         samples and hand over only when its decision is due (radical_rt.fastpath; docs/fdi.md
         §7): a compiled bank, caught up with the tracker buffer, past the window of its alarm
-        (where the decision is held). Between two tracker samples :meth:`on_window` then only
+        (where the decision is held); ``in_release`` False on a bank class
+        keeps it in the hook (the oracle, the benchmark's rows). Between two tracker samples :meth:`on_window` then only
         repeats the decision it took at the last one, except at the :meth:`_bank_wake` times."""
         b = self.bank
-        if (self.state != "alarm" or not isinstance(b, HypothesisBank)
+        if (self.state != "alarm" or not getattr(b, "in_release", False)
                 or b.trk_seq != self.trk_seq or self._t_decided <= b.t_alarm):
             return None
         return b

@@ -53,6 +53,9 @@ class HypothesisBank:
     processed. ``nis_k``, ``logdet_k`` (nh,) hold the last tracker sample's NIS and ln det S.
     """
 
+    #: the engine's compiled release may run this bank (kernel_args; FaultMonitor.kernel_bank)
+    in_release = True
+
     def __init__(self, eng, snap, t_alarm: float) -> None:
         n, npar = eng.n_gyro, eng.ns - 3
         self.snap, self.t_alarm = snap, t_alarm
