@@ -25,7 +25,8 @@ reads the wall clock after every message. Columns:
   compiled release, the product); ``compiled bank, hook`` (the same bank run by the window hook,
   which the release hands over to after every tracker sample: the product before the bank moved
   into the release); ``no-op bank`` (a bank that never advances nor decides, in the hook: the
-  cost of those hand-overs alone); ``Python bank`` (the oracle of tests/oracles/fdi_bank_py.py,
+  cost of those hand-overs alone); ``no-op bank, in release`` (the same, kept by the release
+  without any bank arithmetic: what the alarm and the fault cost besides the bank); ``Python bank`` (the oracle of tests/oracles/fdi_bank_py.py,
   the implementation before the bank was compiled, in the hook; one repetition).
 * ``radical process [s]``: the whole run with :func:`radical_rt.batch.process` (output archive
   written), nominal and fault archive, and their ratio.
@@ -57,7 +58,7 @@ INPUTS = ("/siru", "/st1", "/st2", "/temp")
 
 def _bank_types() -> dict[str, Any]:
     """name → bank class, each timing its advance (seconds and tracker samples, class counters)."""
-    from radical_rt.fdi_hypotheses import HypothesisBank
+    from radical_rt.fdi_hypotheses import HypothesisBank, idle_kernel_args
 
     def timed(base):
         class Timed(base):
@@ -83,8 +84,29 @@ def _bank_types() -> dict[str, Any]:
         def decision(self, llr_min):
             return "wait", None, 0.0
 
+    class NoOpInRelease(NoOpBank):
+        in_release = True
+        _trk = None
+
+        @property
+        def trk_seq(self):  # always caught up, so that the release keeps it (kernel_bank)
+            return self._trk[-1][0] if self._trk else self._seq0
+
+        @trk_seq.setter
+        def trk_seq(self, seq):
+            self._seq0 = seq
+
+        def advance(self, eng, gbuf, trk, t_upto):
+            self._trk = trk
+
+        def kernel_args(self, eng, gbuf, hist_end, rows, llr_min):
+            return idle_kernel_args()
+
+        def kernel_done(self):
+            return 0
+
     out = {"compiled bank": timed(HypothesisBank), "compiled bank, hook": HookBank,
-           "no-op bank": NoOpBank}
+           "no-op bank": NoOpBank, "no-op bank, in release": NoOpInRelease}
     try:
         from tests.oracles.fdi_bank_py import PythonHypothesisBank
         out["Python bank"] = timed(PythonHypothesisBank)

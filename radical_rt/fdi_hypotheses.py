@@ -101,6 +101,7 @@ class HypothesisBank:
         self._thr = np.zeros(0)  # chi2_isf(CONSISTENCY_P, 3k) by k (the compiled decision test)
         self._bi, self._bf = np.zeros(8, np.int64), np.zeros(5)
         self._kargs: tuple | None = None
+        self._kkey: tuple | None = None  # (si, llr_min) of the controls last written
 
     # ------------------------------------------------------------------ kernels
     def _cal(self, eng) -> tuple:
@@ -174,11 +175,14 @@ class HypothesisBank:
                 pw[1], pw[2], pw[3], pw[4], self._w33, self._w3p, self._w4, self.phi, self._sig,
                 self._thr, self._bi, self._bf)
         bi, bf = self._bi, self._bf
-        bi[BI_ON], bi[BI_I0], bi[BI_END] = 1, i0, hist_end
-        bi[BI_PHI_COL], bi[BI_LAT_COL], bi[BI_K] = self.phi_col, self.lat_col, self.k
-        bi[BI_STEPS], bi[BI_BAD] = 0, 0
-        bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
-        bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
+        bi[BI_ON], bi[BI_I0], bi[BI_END], bi[BI_K] = 1, i0, hist_end, self.k
+        bi[BI_STEPS] = bi[BI_BAD] = 0
+        kk = self._kkey  # the rest changes only with the parameters (a new si) or llr_min
+        if kk is None or kk[0] is not si or kk[1] != llr_min:
+            self._kkey = (si, llr_min)
+            bi[BI_PHI_COL], bi[BI_LAT_COL] = self.phi_col, self.lat_col
+            bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
+            bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
         return bk
 
     def kernel_done(self) -> int:
