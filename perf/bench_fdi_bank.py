@@ -6,8 +6,9 @@ Command::
 
 Workload (deterministic, seeded, built before any timing): the 2006216 scenario, seed 1, cold start,
 and the same archive with gyro D's output zero from 40 s (``quick``, ``full``: 290 s; the bank runs
-from the alarm at 42.7 s to the isolation at 275.1 s, about 4700 tracker samples) or gyro B's bias
-stepping by 5 deg/hr at 120 s (``smoke``: 160 s). Both archives are identical before the fault.
+from the alarm at 43.5 s to the isolation at 209.6 s, 3442 tracker samples, with the engine of
+2026-12-02) or gyro B's bias stepping by 5 deg/hr at 120 s (``smoke``: 160 s). Both archives are
+identical before the fault.
 
 Each repetition feeds both archives through the batch shell's stream processor
 (:func:`radical_rt.batch.make_processor`, what ``radical process`` runs), message by message, and

@@ -35,7 +35,7 @@ SCENARIOS = {  # name → (fault, duration [s]); gyro 0..3 = A..D, times from th
     "noise burst A": ({"kind": "noise_burst", "gyro": 0, "start_s": 150.0, "sigma_arcsec": 0.1},
                       190.0),
     "stuck C": ({"kind": "stuck", "gyro": 2, "start_s": 150.0}, 200.0),
-    # the long bank: isolated 235 s after the onset, about 4700 tracker samples
+    # the long bank: isolated 170 s after the onset, 3442 tracker samples (engine of 2026-12-02)
     "zero output D": ({"kind": "zero", "gyro": 3, "start_s": 40.0}, 290.0),
 }
 ISOLATED = {"bias 5 deg/hr B": 1, "noise burst A": 0, "stuck C": 2, "zero output D": 3}
