@@ -6,8 +6,9 @@ Command::
 
 Workload (deterministic, seeded, built before any timing): the 2006216 scenario, seed 1, cold start,
 and the same archive with gyro D's output zero from 40 s (``quick``, ``full``: 290 s; the bank runs
-from the alarm at 42.7 s to the isolation at 275.1 s, about 4700 tracker samples) or gyro B's bias
-stepping by 5 deg/hr at 120 s (``smoke``: 160 s). Both archives are identical before the fault.
+from the alarm at 43.5 s to the isolation at 209.6 s, 3442 tracker samples, with the engine of
+2026-12-02) or gyro B's bias stepping by 5 deg/hr at 120 s (``smoke``: 160 s). Both archives are
+identical before the fault.
 
 Each repetition feeds both archives through the batch shell's stream processor
 (:func:`radical_rt.batch.make_processor`, what ``radical process`` runs), message by message, and
@@ -17,11 +18,17 @@ reads the wall clock after every message. Columns:
   (bus time) per second of stream, the same interval of the nominal archive for the nominal row;
 * ``× nominal``: that figure over the nominal run's (the issue's target: at most 1.5);
 * ``bank [µs per tracker sample]``: time inside ``HypothesisBank.advance`` per tracker sample it
-  processed (all hypotheses; gyro propagation included);
-* rows: ``nominal``; ``compiled bank`` (radical_rt.fdi_hypotheses, the product); ``no-op bank``
-  (a bank that never advances nor decides: the cost of the alarm state itself, i.e. the engine
-  handing over to Python at every window close); ``Python bank`` (the oracle of
-  tests/oracles/fdi_bank_py.py, the implementation before the bank was compiled; one repetition).
+  processed (all hypotheses; gyro propagation included), for the rows whose window hook runs the
+  bank; the bank the compiled release runs (``FaultMonitor.kernel_bank``) cannot be timed apart;
+* ``extra [µs per tracker sample]``: (bank-active interval − the nominal one) over the bank's
+  tracker samples: what the alarm costs per sample, whoever runs the bank;
+* rows: ``nominal``; ``compiled bank`` (radical_rt.fdi_hypotheses run inside the engine's
+  compiled release, the product); ``compiled bank, hook`` (the same bank run by the window hook,
+  which the release hands over to after every tracker sample: the product before the bank moved
+  into the release); ``no-op bank`` (a bank that never advances nor decides, in the hook: the
+  cost of those hand-overs alone); ``no-op bank, in release`` (the same, kept by the release
+  without any bank arithmetic: what the alarm and the fault cost besides the bank); ``Python bank`` (the oracle of tests/oracles/fdi_bank_py.py,
+  the implementation before the bank was compiled, in the hook; one repetition).
 * ``radical process [s]``: the whole run with :func:`radical_rt.batch.process` (output archive
   written), nominal and fault archive, and their ratio.
 
@@ -52,7 +59,7 @@ INPUTS = ("/siru", "/st1", "/st2", "/temp")
 
 def _bank_types() -> dict[str, Any]:
     """name → bank class, each timing its advance (seconds and tracker samples, class counters)."""
-    from radical_rt.fdi_hypotheses import HypothesisBank
+    from radical_rt.fdi_hypotheses import HypothesisBank, idle_kernel_args
 
     def timed(base):
         class Timed(base):
@@ -66,14 +73,41 @@ def _bank_types() -> dict[str, Any]:
                 cls.samples += self.k - k0
         return Timed
 
+    class HookBank(timed(HypothesisBank)):
+        in_release = False
+
     class NoOpBank(HypothesisBank):
+        in_release = False
+
         def advance(self, eng, gbuf, trk, t_upto):
             pass
 
         def decision(self, llr_min):
             return "wait", None, 0.0
 
-    out = {"compiled bank": timed(HypothesisBank), "no-op bank": NoOpBank}
+    class NoOpInRelease(NoOpBank):
+        in_release = True
+        _trk = None
+
+        @property
+        def trk_seq(self):  # always caught up, so that the release keeps it (kernel_bank)
+            return self._trk[-1][0] if self._trk else self._seq0
+
+        @trk_seq.setter
+        def trk_seq(self, seq):
+            self._seq0 = seq
+
+        def advance(self, eng, gbuf, trk, t_upto):
+            self._trk = trk
+
+        def kernel_args(self, eng, gbuf, hist_end, rows, llr_min):
+            return idle_kernel_args()
+
+        def kernel_done(self):
+            return 0
+
+    out = {"compiled bank": timed(HypothesisBank), "compiled bank, hook": HookBank,
+           "no-op bank": NoOpBank, "no-op bank, in release": NoOpInRelease}
     try:
         from tests.oracles.fdi_bank_py import PythonHypothesisBank
         out["Python bank"] = timed(PythonHypothesisBank)
@@ -156,14 +190,16 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
                     bank.spent, bank.samples = 0.0, 0
                 sp, tb, w = _feed(m_flt, bank)
                 rows.setdefault(name, []).append(_interval(tb, w, t0, t1) / (t1 - t0))
-                if hasattr(bank, "spent") and bank.samples:
+                if hasattr(bank, "spent") and bank.samples and not getattr(bank, "in_release", False):
                     per_trk.setdefault(name, []).append(bank.spent / bank.samples)
         nom = float(np.median(rows["nominal"]))
+        n_trk, span = res["bank_trackers"], t1 - t0
         res["rows"] = [{"name": name, "ms_per_s": 1e3 * float(np.median(v)),
                         "x_nominal": float(np.median(v)) / nom,
                         "x_nominal_per_rep": [x / y for x, y in zip(v, rows["nominal"], strict=False)],
                         "us_per_tracker": (1e6 * float(np.median(per_trk[name]))
-                                           if name in per_trk else None)}
+                                           if name in per_trk else None),
+                        "extra_us_per_tracker": 1e6 * (float(np.median(v)) - nom) * span / n_trk}
                        for name, v in rows.items()]
         w_nom = [_process_wall(nominal, Path(tmp) / "out_nom.mcap") for _ in range(max(1, reps // 2))]
         w_flt = [_process_wall(faulty, Path(tmp) / "out_flt.mcap") for _ in range(max(1, reps // 2))]
@@ -184,11 +220,14 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
 def markdown(res: dict[str, Any]) -> str:
     lines = [f"Bank active {res['t_alarm_s']:.1f}–{res['t_isolated_s']:.1f} s of a {res['duration_s']:.0f}-s "
              f"run ({res['bank_trackers']} tracker samples; median of {res['repetitions']})", "",
-             "| run | bank active [ms per s of stream] | × nominal | bank [µs per tracker sample] |",
-             "|---|---|---|---|"]
+             "| run | bank active [ms per s of stream] | × nominal (per repetition) | bank [µs per "
+             "tracker sample] | extra [µs per tracker sample] |", "|---|---|---|---|---|"]
     for r in res["rows"]:
         us = "–" if r["us_per_tracker"] is None else f"{r['us_per_tracker']:.0f}"
-        lines.append(f"| {r['name']} | {r['ms_per_s']:.2f} | {r['x_nominal']:.2f} | {us} |")
+        per = r["x_nominal_per_rep"]
+        spread = f" ({min(per):.2f}–{max(per):.2f})" if len(per) > 1 else ""
+        lines.append(f"| {r['name']} | {r['ms_per_s']:.2f} | {r['x_nominal']:.2f}{spread} | {us} | "
+                     f"{r['extra_us_per_tracker']:.0f} |")
     p = res["process"]
     lines += ["", f"`radical process` (whole run): nominal {p['nominal_s']:.2f} s, fault "
               f"{p['fault_s']:.2f} s (× {p['ratio']:.2f}; the bank runs for "

@@ -19,7 +19,9 @@ reference path would do something only Python does:
 * ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
   trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
   or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
-  ending), or, with io[10] set, after every tracker sample (an FDI hypothesis bank is running).
+  ending), or, with io[10] set, after every tracker sample (an FDI hypothesis bank is running
+  that the kernel does not run itself), or after a tracker sample at which the bank the kernel
+  runs (argument ``bk``) has its decision due.
   Python then runs :meth:`Engine.on_window` exactly as the reference path does.
 
 Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
@@ -50,7 +52,7 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
-from .fdi_bank import append_rows
+from .fdi_bank import BI_ON, append_rows, bank_sample
 from .flags import Flag
 from .gyro_queue import predict_pending
 from .model import fold_correction, tracker_rows
@@ -257,7 +259,7 @@ def unpack(fb, ib, bb, lay):
 @kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F, s_t, s_locked, s_sig_t, wake_t, wake_e, s_parity, s_last1,
+                 clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_parity, s_last1,
                  s_last2, s_mode, s_flags):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
@@ -275,6 +277,11 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     sample-triggered telemetry from its final state (:func:`radical_rt.gyro_queue.predict_pending`
     through the queue's samples z..q_end−1 and the clock's held-back read, clock state
     clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω.
+    bk: the running FDI hypothesis bank's arrays (radical_rt.fdi_hypotheses.HypothesisBank.
+    kernel_args; idle_kernel_args with bk[34][BI_ON] = 0 when none runs here): each tracker event
+    the kernel completes goes through :func:`radical_rt.fdi_bank.bank_sample` as well, and when
+    the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
+    takes the decision at the same sample as the reference path.
     s_t .. s_flags: the engine's scalar state, loaded into io[0:9] and cnt[0] (cnt[1:4] ← 0, 0,
     −1) first (module docstring; FastRelease._fast_begin)."""
     io[0], io[1], io[2], io[3], io[4] = s_t, s_locked, s_sig_t, wake_t, wake_e
@@ -284,6 +291,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
+    bk_on = bk[34]  # the bank's integer controls bi (radical_rt.fdi_bank.BI_*; bank_sample)
     while e < n_ev:
         epoch = ev_f[e, 0]
         up = k
@@ -300,6 +308,10 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
         for r in range(3):
             evo_f[e, 1 + r] = innov[r]
             evo_f[e, 4 + r] = sig[r]
+        if reason == R_DONE and bk_on[BI_ON] != 0 and bank_sample(
+                bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2, io[2], E[_W],
+                E[_UAX], E[_VAX]):
+            reason = R_ON_WINDOW  # the bank's decision is due: Python takes it (on_window)
         if reason != R_DONE:
             return reason, k, e, 1
         e += 1

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import fastpath as fp
+from .fdi_hypotheses import idle_kernel_args
 from .flags import Flag
 
 _ST_KIND = {1: "st1", 2: "st2"}
@@ -71,10 +72,19 @@ class FastRelease:
             if not self.att_valid:
                 self._release_ref(arrays, k, z, events.after(e))
                 return
+            bank = None if fdi is None else fdi.kernel_bank()
+            if bank is None:
+                bk = self._no_bank
+            else:  # the kernel runs the bank on its valid tracker samples (FaultMonitor.kernel_bank)
+                hist = fdi.gbuf
+                bk = bank.kernel_args(self, hist, hist.end + (z - a if g_end >= 0 else 0),
+                                      n_ev - e, fdi.llr_threshold(self))
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, *self._fast_begin())
+                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk, *self._fast_begin())
+            if bank is not None:
+                bank.kernel_done()
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
@@ -122,6 +132,8 @@ class FastRelease:
 
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
+    # ... and for the FDI bank when none runs in the kernel
+    _no_bank = idle_kernel_args()
     # ... and for its prediction when none is asked for (pred[0] = 0)
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
@@ -173,7 +185,8 @@ class FastRelease:
         last ten arguments of :func:`fastpath.fast_release`; :meth:`release` takes it back after
         each call): t, locked_since, σ of the time line, wake_t, wake_e, epoch of the oldest
         queued parity sum, last valid epochs of ST1 and ST2, mode code, flags. It also sets
-        io[10] (the window hook after every tracker sample) from the FDI."""
+        io[10] (the window hook after every tracker sample) from the FDI (a bank that the kernel
+        cannot run itself)."""
         last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
         wake_e = math.inf if fdi is None else fdi.wake_time()
         # io[10]: the FDI's bank wants the window hook after every tracker sample

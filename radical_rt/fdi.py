@@ -188,8 +188,22 @@ class FaultMonitor:
         return self._bank_wake() if self.state == "alarm" else self._next_check
 
     def wake_on_tracker(self) -> bool:
-        """Whether :meth:`on_window` has work after every tracker sample (a bank is running)."""
-        return self.state == "alarm" and self.bank is not None
+        """Whether :meth:`on_window` has work after every tracker sample: a bank is running that
+        the compiled release cannot run itself (:meth:`kernel_bank`)."""
+        return self.state == "alarm" and self.bank is not None and self.kernel_bank() is None
+
+    def kernel_bank(self) -> HypothesisBank | None:
+        """The running bank when the engine's compiled release may run it on its valid tracker
+        samples and hand over only when its decision is due (radical_rt.fastpath; docs/fdi.md
+        §7): a compiled bank, caught up with the tracker buffer, past the window of its alarm
+        (where the decision is held); ``in_release`` False on a bank class
+        keeps it in the hook (the oracle, the benchmark's rows). Between two tracker samples :meth:`on_window` then only
+        repeats the decision it took at the last one, except at the :meth:`_bank_wake` times."""
+        b = self.bank
+        if (self.state != "alarm" or not getattr(b, "in_release", False)
+                or b.trk_seq != self.trk_seq or self._t_decided <= b.t_alarm):
+            return None
+        return b
 
     def _bank_wake(self) -> float:
         """While a bank runs, the engine time from which a window without a new tracker sample

@@ -321,3 +321,55 @@ def bank_step(f, st, br, i0, end, q_meas, n_stars, epoch, R_nom, use_phi, phi, p
     return bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col,
                         epoch - tau - tlast[0], st_sigma, ref_stars, sig_t, gate, q, omega, Ptt,
                         Ptp, Ppp, ll, nis, nis_k, logdet_k, W33, W3p, W4)
+
+
+#: bank_sample's integer and float controls (the last two entries of the bank's kernel tuple,
+#: radical_rt.fdi_hypotheses.HypothesisBank.kernel_args)
+BI_ON, BI_I0, BI_END, BI_PHI_COL, BI_LAT_COL, BI_K, BI_STEPS, BI_BAD = range(8)
+BF_TAU, BF_REF_STARS, BF_GATE, BF_LLR_MIN, BF_ARW = range(5)
+
+
+@kernel
+def decision_due(ll, nis, thr, k, llr_min):
+    """Whether HypothesisBank.decision(llr_min) would say anything but "wait" after k ≥ 1 tracker
+    samples: ll, nis (nh,) as in the bank, thr (K,) the consistency thresholds χ²(3k) by k (the
+    bank's table of fdi_detect.chi2_isf; k ≥ K answers True, a harmless handover). Same order of
+    tests and same ties (best and runner-up: the first index) as the Python decision."""
+    nh = ll.shape[0]
+    best = 0
+    for h in range(1, nh):
+        if ll[h] > ll[best]:
+            best = h
+    second = 1 if best == 0 else 0
+    for h in range(second + 1, nh):
+        if h != best and ll[h] > ll[second]:
+            second = h
+    margin = ll[best] - ll[second]
+    if margin < llr_min:
+        return False
+    if k >= thr.shape[0]:
+        return True
+    return not nis[best] > thr[k]
+
+
+@kernel
+def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax):
+    """One valid tracker sample (q_meas (4,) q_st_from_inertial, n_stars, epoch [s], mounting
+    R_nom (3, 3), use_phi (ST2), σ_t [s] of the time line) for the running bank inside the
+    compiled release (radical_rt.fastpath.fast_release): :func:`bank_step` with the bank's
+    arrays bk (HypothesisBank.kernel_args: the gyro history blocks, the bank state and work,
+    phi (3,), st_sigma (3,), thr (K,), bi int64 (8,) BI_*, bf float64 (5,) BF_*) and the engine's
+    geometry W, U_ax, V_ax; bi[BI_K] and bi[BI_STEPS] += 1, bi[BI_BAD] += the hypotheses whose S
+    was not positive definite. Returns :func:`decision_due` (True: hand over to Python)."""
+    (f, st, br, masks, xp, A, Minv, Gp, N_none, q, omega, tlast, undetermined, Phi_aa, Phi_ap,
+     Q_aa, Ptt, Ptp, Ppp, ll, nis, nis_k, logdet_k, par_y, par_t, acc_i, acc_f, th_acc, W33, W3p,
+     W4, phi, st_sigma, thr, bi, bf) = bk
+    bad = bank_step(f, st, br, bi[BI_I0], bi[BI_END], q_meas, n_stars, epoch, R_nom, use_phi, phi,
+                    bi[BI_PHI_COL], bi[BI_LAT_COL], bf[BF_TAU], st_sigma, bf[BF_REF_STARS], sig_t,
+                    bf[BF_GATE], masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none, bf[BF_ARW], q,
+                    omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, ll, nis,
+                    nis_k, logdet_k, par_y, par_t, acc_i, acc_f, th_acc, W33, W3p, W4)
+    bi[BI_BAD] += bad
+    bi[BI_STEPS] += 1
+    bi[BI_K] += 1
+    return decision_due(ll, nis, thr, bi[BI_K], bf[BF_LLR_MIN])

@@ -17,7 +17,24 @@ from typing import Any
 import numpy as np
 
 from . import ud
-from .fdi_bank import bank_flush, bank_propagate, bank_step
+from .fdi_bank import (
+    BF_ARW,
+    BF_GATE,
+    BF_LLR_MIN,
+    BF_REF_STARS,
+    BF_TAU,
+    BI_BAD,
+    BI_END,
+    BI_I0,
+    BI_K,
+    BI_LAT_COL,
+    BI_ON,
+    BI_PHI_COL,
+    BI_STEPS,
+    bank_flush,
+    bank_propagate,
+    bank_step,
+)
 from .fdi_detect import chi2_isf
 from .model import refresh_axes
 
@@ -35,6 +52,9 @@ class HypothesisBank:
     ``t_last`` [s] the last gyro sample propagated, ``trk_seq`` the last tracker sequence number
     processed. ``nis_k``, ``logdet_k`` (nh,) hold the last tracker sample's NIS and ln det S.
     """
+
+    #: the engine's compiled release may run this bank (kernel_args; FaultMonitor.kernel_bank)
+    in_release = True
 
     def __init__(self, eng, snap, t_alarm: float) -> None:
         n, npar = eng.n_gyro, eng.ns - 3
@@ -78,6 +98,10 @@ class HypothesisBank:
         self._sig_src, self._sig = None, np.zeros(3)
         self._decided: tuple = (None, None)  # ((k, llr_min), decision) of the last decision
         self.bad_s = 0  # hypothesis-samples whose S was not positive definite (ll = −inf)
+        self._thr = np.zeros(0)  # chi2_isf(CONSISTENCY_P, 3k) by k (the compiled decision test)
+        self._bi, self._bf = np.zeros(8, np.int64), np.zeros(5)
+        self._kargs: tuple | None = None
+        self._kkey: tuple | None = None  # (si, llr_min) of the controls last written
 
     #: what changes as the bank runs (the rest derives from the snapshot): checkpoints
     STATE_ARRAYS = ("q", "omega", "Ptt", "Ptp", "Ppp", "ll", "nis", "nis_k", "logdet_k",
@@ -142,6 +166,60 @@ class HypothesisBank:
                    self._w3p[0], self._w3p[1], self._w33[10])
         return self.q[h], self.omega[h], self.Ptt[h], self.Ptp[h]
 
+    # ------------------------------------------------------------------ inside the compiled release
+    def kernel_args(self, eng, gbuf, hist_end: int, rows: int, llr_min: float) -> tuple:
+        """The tuple bk of :func:`radical_rt.fdi_bank.bank_sample` (the compiled release runs the
+        bank on its valid tracker samples, see radical_rt.fastpath): the gyro history's blocks
+        (rows gbuf.i0..hist_end−1 in use by then; the release appends its samples first), the
+        stacked state and work arrays, phi, st_sigma, the consistency thresholds for up to
+        ``rows`` more samples, and the controls bi, bf (BI_*, BF_*; BI_STEPS, BI_BAD zeroed).
+        Only valid while the bank is caught up with the monitor's tracker buffer."""
+        si = eng.si
+        if si.st_sigma is not self._sig_src:
+            self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
+        k_max = self.k + rows
+        if self._thr.shape[0] <= k_max:
+            thr = np.empty(max(2 * self._thr.shape[0], k_max + 64))
+            thr[:self._thr.shape[0]] = self._thr
+            for k in range(self._thr.shape[0], thr.shape[0]):
+                thr[k] = chi2_isf(CONSISTENCY_P, 3 * k) if k > 0 else 0.0
+            self._thr, self._kargs = thr, None
+        f, st, br, i0, _end = gbuf.blocks()
+        bk = self._kargs
+        if bk is None or bk[0] is not f or bk[1] is not st or bk[2] is not br or bk[32] is not self._sig:
+            pw = self._pw
+            bk = self._kargs = (
+                f, st, br, self.masks, self.xp, self.A, self.Minv, self.Gp, self.N_none, self.q,
+                self.omega, self.tlast, self.undetermined, self.Phi_aa, self.Phi_ap, self.Q_aa,
+                self.Ptt, self.Ptp, self.Ppp, self.ll, self.nis, self.nis_k, self.logdet_k, pw[0],
+                pw[1], pw[2], pw[3], pw[4], self._w33, self._w3p, self._w4, self.phi, self._sig,
+                self._thr, self._bi, self._bf)
+        bi, bf = self._bi, self._bf
+        bi[BI_ON], bi[BI_I0], bi[BI_END], bi[BI_K] = 1, i0, hist_end, self.k
+        bi[BI_STEPS] = bi[BI_BAD] = 0
+        kk = self._kkey  # the rest changes only with the parameters (a new si) or llr_min
+        if kk is None or kk[0] is not si or kk[1] != llr_min:
+            self._kkey = (si, llr_min)
+            bi[BI_PHI_COL], bi[BI_LAT_COL] = self.phi_col, self.lat_col
+            bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
+            bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
+        return bk
+
+    def kernel_done(self) -> int:
+        """Take back what the compiled release did with :meth:`kernel_args`' tuple: the tracker
+        samples it processed (k, trk_seq: the monitor's next samples, which the engine hands to
+        it afterwards), t_last and the bad-S count. Returns the number of samples."""
+        bi = self._bi
+        steps = int(bi[BI_STEPS])
+        bi[BI_ON] = 0
+        if steps:
+            self.k += steps
+            self.trk_seq += steps
+            self.bad_s += int(bi[BI_BAD])
+            self.t_last = float(self.tlast[0])
+        bi[BI_STEPS] = bi[BI_BAD] = 0
+        return steps
+
     # ------------------------------------------------------------------ driver and decision
     def advance(self, eng, gbuf, trk: deque, t_upto: float) -> None:
         """Process the buffered trackers (seq > last) with epoch ≤ t_upto, each after the gyro
@@ -191,4 +269,15 @@ class HypothesisBank:
                 "undetermined": [int(x) for x in self.undetermined]}
 
 
-__all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank"]
+def idle_kernel_args() -> tuple:
+    """A stand-in for :meth:`HypothesisBank.kernel_args` when no bank runs in the compiled
+    release: arrays of the same kinds (dimensions, dtypes, C order), empty, with BI_ON = 0."""
+    f8, i8, b1 = np.float64, np.int64, np.bool_
+    kinds = [(2, f8), (1, i8), (1, b1), (2, b1)] + [(1, f8)] + [(2, f8)] * 6 + [(1, f8), (1, i8)]
+    kinds += [(3, f8)] * 5 + [(2, f8)] + [(1, f8)] * 4 + [(2, f8)] * 2 + [(1, i8), (1, f8), (1, f8)]
+    kinds += [(3, f8), (3, f8), (2, f8), (1, f8), (1, f8), (1, f8)]
+    arrays = [np.zeros((0,) * nd, dt) for nd, dt in kinds]
+    return (*arrays, np.zeros(8, i8), np.zeros(5, f8))
+
+
+__all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank", "idle_kernel_args"]

@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.fdi_bank import bank_flush, bank_propagate, bank_tracker, rows_after
+from radical_rt.fdi_bank import bank_flush, bank_propagate, bank_tracker, decision_due, rows_after
+from radical_rt.fdi_detect import chi2_isf
+from radical_rt.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
 from radical_rt.model import tracker_residual
 from radical_rt.propagate import propagate_window
 from radical_rt.rotation import quat_conj, quat_mul, rotvec_to_quat
@@ -206,6 +208,32 @@ def test_propagate_runs_compose_like_one_run_of_propagate_window():
     assert not np.array_equal(s[0][0], s[0][1])  # the hypotheses did differ
 
 
+def test_decision_due_is_the_python_decision_not_waiting():
+    """decision_due (the compiled release's test) says True exactly when HypothesisBank._decide
+    says anything but "wait", on seeded log-likelihoods with ties, −inf, margins at the
+    threshold and NIS sums on both sides of χ²(3K); K beyond the table: True."""
+    rng = np.random.default_rng(SEED)
+    llr_min = 13.8
+    thr = np.array([0.0] + [chi2_isf(CONSISTENCY_P, 3 * k) for k in range(1, 60)])
+    bank = HypothesisBank.__new__(HypothesisBank)  # only the decision's state is needed
+    bank.gyros = [None, 0, 1, 2, 3]
+    seen = {True: 0, False: 0}
+    for trial in range(3000):
+        k = int(rng.integers(1, 59))
+        ll = rng.choice([0.0, -5.0, -13.8, -20.0, -np.inf], size=NH) if trial % 3 == 0 else \
+            -np.abs(rng.standard_normal(NH)) * rng.choice([1.0, 10.0, 30.0])
+        nis = thr[k] * rng.uniform(0.5, 1.5, NH)
+        if trial % 7 == 0:
+            nis[:] = thr[k]  # at the threshold: not above it
+        bank.ll, bank.nis, bank.k = ll, nis, k
+        verdict = bank._decide(llr_min)[0]
+        due = decision_due(ll, nis, thr, k, llr_min)
+        assert due == (verdict != "wait"), (ll, nis, k, verdict)
+        seen[bool(due)] += 1
+    assert min(seen.values()) > 100, seen
+    assert decision_due(np.array([0.0, -50.0, -60.0, -70.0, -80.0]), np.zeros(NH), thr, 60, llr_min)
+
+
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="already without JIT")
 def test_kernels_without_jit():
     """The tests above with NUMBA_DISABLE_JIT=1: the kernels' source as plain Python."""
@@ -216,7 +244,7 @@ def test_kernels_without_jit():
                         "-k", "not without_jit"], env=env, cwd=root, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
-    assert "6 passed" in r.stdout, r.stdout[-2000:]
+    assert "7 passed" in r.stdout, r.stdout[-2000:]
 
 
 def test_numba_cache_fingerprint_covers_the_bank_kernels(tmp_path, monkeypatch):
