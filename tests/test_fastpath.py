@@ -16,12 +16,12 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import input_messages, make_archive
 
 from perf.fdi_table import fault_toml, synth
 from radical_rt import fastpath
 from radical_rt.batch import make_processor
 from radical_rt.params import ParamTable
+from support.streams import damaged, input_messages, make_archive
 
 
 def run(messages, fast: bool, params=None):
@@ -75,31 +75,6 @@ def test_nominal_stream_is_bit_identical(nominal, consider, monkeypatch):
     assert (n_consider > 500) if consider else (n_consider == 0)
     assert c["st1_invalid"] + c["st2_invalid"] > 0
     assert sum(t == "tlm/medium" for t, _ in out) >= 350
-
-
-def damaged(messages):
-    """The stream with a SIRU gap, garbage, duplicates, a time reversal and a NaN quaternion."""
-    out, seen = [], 0
-    for i, (topic, ns, data) in enumerate(messages):
-        t_rel = ns * 1e-9 - 1000.0
-        if topic == "siru" and 100.0 <= t_rel < 101.0:
-            continue  # a 1 s hole in the SIRU stream: gyro gap, warm start
-        out.append((topic, ns, data))
-        if i % 997 == 5:
-            out.append((topic, ns, data))  # duplicate
-        if i % 1499 == 7:
-            out.append((topic, ns, b"\xc1\x00garbage"))
-        if topic == "st1" and 150.0 <= t_rel and seen == 0:
-            msg = msgpack.unpackb(data)
-            msg["q"] = [float("nan")] * 4
-            msg["t_bus"] += 0.001
-            out.append((topic, ns, msgpack.packb(msg)))
-            seen = 1
-        if topic == "st2" and i % 2011 == 11:
-            msg = msgpack.unpackb(data)
-            msg["t_bus"] -= 5.0  # time going backwards
-            out.append((topic, ns, msgpack.packb(msg)))
-    return out
 
 
 def test_damaged_stream_is_bit_identical(nominal):

@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 import pytest
-from oracles.fdi_bank_py import PythonHypothesisBank
 
+from oracles.fdi_bank_py import PythonHypothesisBank
 from perf.fdi_table import fault_toml, synth
 from radical_rt.batch import make_processor
 from radical_rt.fdi import FaultMonitor

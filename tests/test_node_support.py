@@ -12,25 +12,7 @@ from radical_rt.batch import process
 from radical_rt.checkpoint import capture
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import InMemoryBus, InMemoryTransport
-from replayer.archive import ArchiveReader
-from replayer.synth.api import synthesize
-
-INPUTS = ["/siru", "/st1", "/st2", "/temp"]
-
-
-def make_archive(directory: Path, name: str, seed: int, duration: float, base: str = "2006216") -> Path:
-    """A simulated archive whose bus times start at 1000 s (positive log times)."""
-    sc = directory / f"{name}.toml"
-    sc.write_text(f'base = "{base}"\nt_start_s = 1000.0\n')
-    out = directory / f"{name}.mcap"
-    synthesize(str(sc), out, seed=seed, duration=duration)
-    return out
-
-
-def input_messages(path: Path) -> list[tuple[str, int, bytes]]:
-    """(topic without slash, log_time ns, payload) of the input channels, in log_time order."""
-    with ArchiveReader(path) as r:
-        return [(t[1:], ns, data) for t, ns, data in r.iter_raw(topics=INPUTS)]
+from support.streams import INPUTS, input_messages, make_archive  # noqa: F401 (re-exported)
 
 
 @pytest.fixture(scope="session")

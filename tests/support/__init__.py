@@ -1,0 +1,1 @@
+"""Shared helpers of the test suite (no tests here): seeded input streams and golden outputs."""
