@@ -50,11 +50,7 @@ from radical_rt.conventions import SIRU_TT_WRAP
 from radical_rt.packets import MAX_SIRU_BATCH
 from radical_rt.siru_wire import WIRE_GROW, WIRE_OK, siru_accept, siru_intake
 
-#: counters exposed by :attr:`SiruClock.counters` (the first seven are the interface's)
-COUNTER_NAMES = ("samples", "repeated", "missing", "bridged", "anomalies", "wraps", "resets",
-                 "gaps", "tt_glitches", "tbus_glitches", "time_jumps", "timing_outliers",
-                 "relocks", "unexplained", "repeat_mismatch", "rejected", "tt_jumps",
-                 "margin_grows", "crossings", "read_glitches", "crossings_rejected")
+COUNTER_NAMES = L.COUNTER_NAMES  # counters exposed by SiruClock.counters (declared with I)
 STATE_SCHEMA = "radical.clock_state/2"
 _CHUNK = 16384  # reads per kernel call (bounds the reused output buffers)
 
@@ -128,40 +124,40 @@ class ClockConfig:
 
     def params(self) -> np.ndarray:
         """The kernel's parameter block (``F[:NPRM]``)."""
-        p = np.zeros(L.NPRM)
         ns = float(self.slope_scale_samples)
         y = self.period_s * ns * 1e-6
-        p[L.P_T] = self.period_s
-        p[L.P_TICKS] = self.ticks_per_sample
-        p[L.P_WRAP] = self.wrap
-        p[L.P_NAIVE] = 1.0 if self.mode == "naive" else 0.0
-        p[L.P_DELTA] = self.jitter_margin_s
-        p[L.P_NS] = ns
-        p[L.P_READ_TOL] = self.read_tol_s
-        p[L.P_BUS_T] = self.bus_period_s
-        p[L.P_CHECK_TICKS] = 1.0 if self.check_bus_ticks else 0.0
-        p[L.P_MAX_BRIDGE] = self.max_bridge
-        p[L.P_SIG_ALPHA] = self.bridge_accel_sigma_rad_s2
-        p[L.P_HOLD] = self.anomaly_hold_s
-        p[L.P_GROSS] = self.gross_violation_s
-        p[L.P_RELOCK] = self.relock_after_reads
-        p[L.P_RESET_TICKS] = self.reset_window_ticks
-        p[L.P_INFL_DT] = self.inflate_interval_s
-        p[L.P_PHASE_WANDER] = self.phase_wander_s_per_s
-        p[L.P_FREQ_WANDER] = self.freq_wander_per_s
-        p[L.P_Y_LO] = (self.freq_offset_ppm - self.freq_offset_max_ppm) * y
-        p[L.P_Y_HI] = (self.freq_offset_ppm + self.freq_offset_max_ppm) * y
-        p[L.P_MAX_JUMP] = self.max_tt_jump_samples
-        p[L.P_LOCK_SIGMA] = self.lock_sigma_s
-        p[L.P_TIME_TOL] = self.time_tol_s
-        p[L.P_DELTA_MAX] = max(self.jitter_margin_max_s, self.jitter_margin_s)
-        p[L.P_LINE_QX] = self.line_phase_rw_s_sqrt_s ** 2
-        p[L.P_LINE_QY] = (self.line_freq_rw_per_sqrt_s * self.period_s * ns) ** 2
-        p[L.P_SPATE_WMIN] = self.spate_min_reads
-        p[L.P_LINE_FLOOR] = self.line_floor_s
-        p[L.P_LINE_GATE] = self.line_gate_sigma
-        p[L.P_SPATE_MAX] = self.spate_max_reads
-        return p
+        return L.PRM.pack({
+            "t": self.period_s,
+            "ticks": self.ticks_per_sample,
+            "wrap": self.wrap,
+            "naive": 1.0 if self.mode == "naive" else 0.0,
+            "delta": self.jitter_margin_s,
+            "ns": ns,
+            "read_tol": self.read_tol_s,
+            "bus_t": self.bus_period_s,
+            "check_ticks": 1.0 if self.check_bus_ticks else 0.0,
+            "max_bridge": self.max_bridge,
+            "sig_alpha": self.bridge_accel_sigma_rad_s2,
+            "hold": self.anomaly_hold_s,
+            "gross": self.gross_violation_s,
+            "relock": self.relock_after_reads,
+            "reset_ticks": self.reset_window_ticks,
+            "infl_dt": self.inflate_interval_s,
+            "phase_wander": self.phase_wander_s_per_s,
+            "freq_wander": self.freq_wander_per_s,
+            "y_lo": (self.freq_offset_ppm - self.freq_offset_max_ppm) * y,
+            "y_hi": (self.freq_offset_ppm + self.freq_offset_max_ppm) * y,
+            "max_jump": self.max_tt_jump_samples,
+            "lock_sigma": self.lock_sigma_s,
+            "time_tol": self.time_tol_s,
+            "delta_max": max(self.jitter_margin_max_s, self.jitter_margin_s),
+            "line_qx": self.line_phase_rw_s_sqrt_s ** 2,
+            "line_qy": (self.line_freq_rw_per_sqrt_s * self.period_s * ns) ** 2,
+            "spate_wmin": self.spate_min_reads,
+            "line_floor": self.line_floor_s,
+            "line_gate": self.line_gate_sigma,
+            "spate_max": self.spate_max_reads,
+        })
 
 
 class GyroBatch(NamedTuple):

@@ -30,6 +30,7 @@ from ._jit import kernel
 from .clock_kernels import clock_push_rows
 from .conventions import SIRU_TT_WRAP
 from .packets import MAX_DTHETA_RAD, MAX_SIRU_BATCH
+from .stream_layout import SS_WINDOW
 
 FALLBACK = -1  # not the plain layout (or not valid): take the general path
 # siru_intake statuses
@@ -38,7 +39,6 @@ WIRE_JUMP = 5  # outside the stream's plausibility window (docs/node.md, "Time s
 # the stream's plausibility window W [s] in the shared stream times (ss[SS_WINDOW]; inf: off):
 # a message whose newest t_bus is more than W + k·SPAN_PER_SAMPLE_S after the newest t_bus of
 # the stream, or whose oldest is more than W before it, is a jump candidate, not taken in
-SS_WINDOW = 6
 SPAN_PER_SAMPLE_S = 0.02  # allowance per sample of a siru batch (two nominal 10-ms periods)
 # k_needed < 0 below FALLBACK: −(2 + k) asks for column buffers of k rows
 

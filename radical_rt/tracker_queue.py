@@ -31,10 +31,21 @@ import numpy as np
 
 from ._jit import kernel
 from .packets import MAX_N_STARS, QUAT_NORM_TOL
-from .siru_wire import SS_WINDOW, _be, _integer, outside_window
-
-SS_T_MAX, SS_RELEASED, SS_LAST, SS_T_IN, SS_LAST_SIRU = 0, 1, 1, 4, 5  # tracker j: SS_LAST + j
-SI_LATE, SI_SEQ, SI_HEAD, SI_END = 0, 1, 2, 3
+from .siru_wire import _be, _integer, outside_window
+from .stream_layout import (  # noqa: F401 (re-exported for the stream)
+    SI,
+    SI_END,
+    SI_HEAD,
+    SI_LATE,
+    SI_SEQ,
+    SS,
+    SS_LAST,
+    SS_LAST_SIRU,
+    SS_RELEASED,
+    SS_T_IN,
+    SS_T_MAX,
+    SS_WINDOW,
+)
 
 # tracker_intake / tracker_accept results
 IN_FALLBACK = -1  # not the plain layout: decode it in Python, then tracker_accept
@@ -262,9 +273,9 @@ class TrackerQueue:
     per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see fast_release)."""
 
     def __init__(self, capacity: int = 64) -> None:
-        self.ss = np.zeros(SS_WINDOW + 1)
+        self.ss = np.zeros(SS.end)
         self.ss[SS_WINDOW] = np.inf  # no plausibility window unless the stream sets one
-        self.si = np.zeros(4, np.int64)
+        self.si = np.zeros(SI.end, np.int64)
         self.q_work = np.zeros(4)
         self._alloc(capacity)
         self.clear()
