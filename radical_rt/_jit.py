@@ -16,9 +16,10 @@ kernels of other modules (``fastpath.fast_release`` calls into ``propagate``, ``
 modules it went on running the *old* callee from its cache while direct callers ran the new one.
 :func:`_drop_stale_cache` therefore treats the cached kernels of a source directory as one unit:
 a fingerprint of the Numba version, ``_POLICY`` and the contents of every kernel module (a
-``.py`` file that declares kernels) of ``radical_rt/`` and of the kernel's own directory, and of
-every sibling module they import (directly or not: a layout module's constants are frozen into
-the compiled code too), is kept in ``__pycache__/kernels.stamp``;
+``.py`` file that declares kernels) of the whole ``radical_rt/`` tree (subpackages included) and
+of the kernel's own directory tree, and of every module of those trees they import (directly or
+not: a layout module's constants are frozen into the compiled code too), is kept in
+``__pycache__/kernels.stamp`` of each directory;
 when it changes, every cached kernel there (``*.nbi``, ``*.nbc``) is deleted before the first
 kernel of that directory is declared, so everything is compiled afresh. (This covers Numba's
 default cache location next to the sources; with ``NUMBA_CACHE_DIR`` set, clear that directory
@@ -43,29 +44,37 @@ _IMPORT = re.compile(rb"^\s*(?:from|import)\s+([^\n]*)", re.MULTILINE)
 
 
 def _kernel_sources(d: Path) -> list[Path]:
-    """The kernel modules of directory d and the sibling modules they import, transitively."""
-    texts = {src.stem: src.read_bytes() for src in d.glob("*.py")}
-    todo = [stem for stem, t in texts.items()
+    """The kernel modules of the tree under d (subpackages included) and the modules of that
+    tree they import, transitively. An imported name is matched against module file names
+    anywhere in the tree (``from .layout import X`` and ``from ..kernels import layout`` both
+    reach every ``layout.py``): over-inclusive, so a change is never missed."""
+    files = sorted(p for p in d.rglob("*.py") if "__pycache__" not in p.parts)
+    texts = {p: p.read_bytes() for p in files}
+    by_stem: dict[str, list[Path]] = {}
+    for p in files:
+        by_stem.setdefault(p.stem, []).append(p)
+    todo = [p for p, t in texts.items()
             if b"@kernel" in t or b"@inline_kernel" in t or b"njit(" in t]
-    keep: set[str] = set()
+    keep: set[Path] = set()
     while todo:
-        stem = todo.pop()
-        if stem in keep:
+        path = todo.pop()
+        if path in keep:
             continue
-        keep.add(stem)
-        for line in _IMPORT.findall(texts[stem]):
-            names = (w.decode() for w in re.findall(rb"\w+", line))
-            todo += [name for name in names if name in texts]
-    return [d / f"{stem}.py" for stem in sorted(keep)]
+        keep.add(path)
+        for line in _IMPORT.findall(texts[path]):
+            for w in re.findall(rb"\w+", line):
+                todo += by_stem.get(w.decode(), [])
+    return sorted(keep)
 
 
 def _fingerprint(directory: Path) -> str:
-    """Hash of the Numba version, the policy, and the kernel modules of the package and of
-    ``directory`` with the sibling modules they import."""
+    """Hash of the Numba version, the policy, and the kernel modules of the package's whole tree
+    and of ``directory``'s tree (when outside the package) with the modules they import."""
     h = hashlib.sha256(f"{numba.__version__}|{sorted(_POLICY.items())}".encode())
-    for d in sorted({_PACKAGE, directory}):
+    roots = {_PACKAGE} if directory.is_relative_to(_PACKAGE) else {_PACKAGE, directory}
+    for d in sorted(roots):
         for src in _kernel_sources(d):
-            h.update(src.name.encode())
+            h.update(str(src.relative_to(d)).encode())
             h.update(src.read_bytes())
     return h.hexdigest()
 

@@ -68,3 +68,25 @@ def test_policy_is_in_the_fingerprint(tmp_path):
         _jit._POLICY.clear()
         _jit._POLICY.update(policy)
     assert _jit._fingerprint(tmp_path) == before
+
+
+def test_kernels_in_subpackages_are_one_unit(tmp_path, monkeypatch):
+    """A kernel in pkg/engine/ that imports a kernel module of pkg/kernels/ (and its layout
+    module) is recompiled when either changes; the package's own tree is covered recursively."""
+    (tmp_path / "kernels").mkdir()
+    (tmp_path / "engine").mkdir()
+    ud = tmp_path / "kernels" / "ud.py"
+    lay = tmp_path / "kernels" / "lay.py"
+    ud.write_text("from . import lay\n@kernel\ndef g(x):\n    return x * lay.N\n")
+    lay.write_text("N = 2\n")
+    eng = tmp_path / "engine" / "loop.py"
+    eng.write_text("from ..kernels.ud import g\n@kernel\ndef f(x):\n    return g(x)\n")
+    srcs = _jit._kernel_sources(tmp_path)
+    assert {p.relative_to(tmp_path).as_posix() for p in srcs} == {
+        "kernels/ud.py", "kernels/lay.py", "engine/loop.py"}
+    before = _jit._fingerprint(tmp_path)
+    lay.write_text("N = 3\n")
+    assert _jit._fingerprint(tmp_path) != before
+    # the real package: every kernel module of radical_rt, wherever it lives, is covered
+    pkg = {p.name for p in _jit._kernel_sources(_jit._PACKAGE)}
+    assert {"fastpath.py", "propagate.py", "clock_layout.py", "layout.py"} <= pkg
