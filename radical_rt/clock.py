@@ -46,9 +46,6 @@ from radical_rt.clock_kernels import (
 )
 from radical_rt.clock_line import period
 from radical_rt.clock_timing import line_time, pending_read, tag_sigma
-from radical_rt.conventions import SIRU_TT_WRAP
-from radical_rt.packets import MAX_SIRU_BATCH
-from radical_rt.siru_wire import WIRE_GROW, WIRE_OK, siru_accept, siru_intake
 
 COUNTER_NAMES = L.COUNTER_NAMES  # counters exposed by SiruClock.counters (declared with I)
 STATE_SCHEMA = "radical.clock_state/2"
@@ -224,57 +221,24 @@ class SiruClock:
         """Process one ``siru`` message's columns (k reads, in read order)."""
         return self._run(t_bus, tt, dtheta, status, final=False)
 
-    def _room(self, k: int, queue) -> None:
-        """Output buffers, queue rows and tag slots for the samples k reads can release."""
+    def prepare(self, k: int, queue) -> tuple:
+        """Before a compiled intake of k reads that appends to ``queue`` (a
+        :class:`radical_rt.gyro_queue.GyroQueue`; :class:`radical_rt.siru_wire.SiruWire` runs it):
+        output buffers, queue rows and tag slots for the samples k reads can release. Returns the
+        clock's arguments of those kernels: (I, F, chunk, out_f, out_i, tags)."""
         self._out_room(k)
         bound = k * (int(self.config.max_bridge) + 1)
         queue.reserve(bound)
         if self._tags.shape[0] < bound:
             self._tags = np.empty(bound + bound // 4, np.int64)
+        return self._I, self._F, _CHUNK, self._of, self._oi, self._tags
 
-    def _taken(self, status: int, queue, m: int) -> None:
-        """After a siru_accept/siru_intake call: its m samples are in the queue."""
-        if status == WIRE_OK:
-            self._sig_cache = self._anom_cache = None
-            queue.end += m
-            self._n_tags = m
-
-    def accept(self, t_bus, tt, dtheta, status, queue, ss, i_last: int, i_tmax: int
-               ) -> tuple[int, int]:
-        """One decoded ``siru`` message into the stream, in one kernel call
-        (:func:`radical_rt.siru_wire.siru_accept`): the stream's time check (ss, i_last, i_tmax:
-        its times), then :meth:`push` with the released samples appended straight to ``queue``
-        (a :class:`radical_rt.gyro_queue.GyroQueue`). t_bus (k,) float64, tt (k,) int64,
-        dtheta (k, n) float64, status (k,) int64, all C-contiguous (as
-        :func:`radical_rt.packets.decode_siru` returns them). Returns (WIRE_* status, samples
-        appended; ``last_tt`` holds their tags); on a refusal nothing has changed."""
-        self._room(t_bus.shape[0], queue)
-        code, m = siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, self._I, self._F,
-                              _CHUNK, self._of, self._oi, queue.end, queue.t, queue.dt,
-                              queue.dtheta, queue.status, queue.bridged, queue.var_extra,
-                              self._tags)
-        self._taken(code, queue, m)
-        return code, m
-
-    def intake(self, wire, payload, queue, ss, i_last: int, i_tmax: int) -> tuple[int, int, int]:
-        """:meth:`accept` of a plain ``siru`` message straight from its bytes, decoding included,
-        in one kernel call (:func:`radical_rt.siru_wire.siru_intake`; ``wire``: its
-        :class:`~radical_rt.siru_wire.SiruWire` buffers). Returns (WIRE_* status, batch length,
-        samples appended); on any status but WIRE_OK nothing has changed (WIRE_FALLBACK: decode
-        the message in Python, then :meth:`accept`)."""
-        buf = np.frombuffer(payload, np.uint8)
-        while True:
-            self._room(wire.capacity, queue)
-            code, k, m = siru_intake(
-                buf, self.n_gyro, wire.t_bus, wire.tt, wire.dtheta, wire.status, MAX_SIRU_BATCH,
-                SIRU_TT_WRAP, ss, i_last, i_tmax, self._I, self._F, _CHUNK, self._of, self._oi,
-                queue.end, queue.t, queue.dt, queue.dtheta, queue.status, queue.bridged,
-                queue.var_extra, self._tags)
-            if code != WIRE_GROW:
-                break
-            wire.grow(k)
-        self._taken(code, queue, m)
-        return code, k, m
+    def taken(self, queue, m: int) -> None:
+        """After a compiled intake that succeeded: its m samples are in the queue (a refused
+        message changed nothing, and this is not called)."""
+        self._sig_cache = self._anom_cache = None
+        queue.end += m
+        self._n_tags = m
 
     _tags = np.empty(0, np.int64)
     _n_tags = 0

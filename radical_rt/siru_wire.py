@@ -299,3 +299,39 @@ class SiruWire:
     def grow(self, k: int) -> None:
         """Column buffers for k rows (after WIRE_GROW)."""
         self._alloc(k)
+
+    def intake(self, clock, payload, queue, ss, i_last: int, i_tmax: int) -> tuple[int, int, int]:
+        """A plain ``siru`` message straight from its bytes into ``queue`` (a
+        :class:`radical_rt.gyro_queue.GyroQueue`) through ``clock`` (a
+        :class:`radical_rt.clock.SiruClock`), in one kernel call (:func:`siru_intake`: decoding,
+        the stream's time check on ss[i_last] and ss[i_tmax], the clock, the queue append).
+        Returns (WIRE_* status, batch length, samples appended); on any status but WIRE_OK
+        nothing has changed (WIRE_FALLBACK: decode the message in Python, then :meth:`accept`)."""
+        buf = np.frombuffer(payload, np.uint8)
+        while True:
+            I, F, chunk, out_f, out_i, tags = clock.prepare(self.capacity, queue)
+            code, k, m = siru_intake(
+                buf, self.n_gyro, self.t_bus, self.tt, self.dtheta, self.status, MAX_SIRU_BATCH,
+                SIRU_TT_WRAP, ss, i_last, i_tmax, I, F, chunk, out_f, out_i, queue.end, queue.t,
+                queue.dt, queue.dtheta, queue.status, queue.bridged, queue.var_extra, tags)
+            if code != WIRE_GROW:
+                break
+            self.grow(k)
+        if code == WIRE_OK:
+            clock.taken(queue, m)
+        return code, k, m
+
+    @staticmethod
+    def accept(clock, t_bus, tt, dtheta, status, queue, ss, i_last: int, i_tmax: int
+               ) -> tuple[int, int]:
+        """One decoded ``siru`` message (t_bus (k,) float64, tt (k,) int64, dtheta (k, n) float64,
+        status (k,) int64, C-contiguous, as :func:`radical_rt.packets.decode_siru` returns them)
+        through the same steps as :meth:`intake` but the decoding (:func:`siru_accept`). Returns
+        (WIRE_* status, samples appended); on a refusal nothing has changed."""
+        I, F, chunk, out_f, out_i, tags = clock.prepare(t_bus.shape[0], queue)
+        code, m = siru_accept(t_bus, tt, dtheta, status, ss, i_last, i_tmax, I, F, chunk, out_f,
+                              out_i, queue.end, queue.t, queue.dt, queue.dtheta, queue.status,
+                              queue.bridged, queue.var_extra, tags)
+        if code == WIRE_OK:
+            clock.taken(queue, m)
+        return code, m

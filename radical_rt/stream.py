@@ -150,14 +150,14 @@ class StreamProcessor(StreamGuards):
 
     def _feed_siru(self, payload) -> None:
         """A siru message: decoded, time-checked and pushed through the clock into the gyro
-        queue by one kernel call (:meth:`radical_rt.clock.SiruClock.intake`); any other layout
+        queue by one kernel call (:meth:`radical_rt.siru_wire.SiruWire.intake`); any other layout
         through msgpack and :func:`radical_rt.packets.decode_siru`, then the same kernel's steps
-        (:meth:`radical_rt.clock.SiruClock.accept`)."""
+        (:meth:`radical_rt.siru_wire.SiruWire.accept`)."""
         ss, gq = self._tq.ss, self._gq
         status = WIRE_FALLBACK
         prev = float(ss[SS_LAST_SIRU])
         if isinstance(payload, (bytes, bytearray, memoryview)):
-            status, k, m = self.clock.intake(self._wire, payload, gq, ss, SS_LAST_SIRU,
+            status, k, m = self._wire.intake(self.clock, payload, gq, ss, SS_LAST_SIRU,
                                              SS_T_MAX)
             t0 = float(self._wire.t_bus[0])
             if status == WIRE_JUMP:
@@ -167,7 +167,8 @@ class StreamProcessor(StreamGuards):
         if status == WIRE_FALLBACK:
             t_bus, tt, dth, st = decode_siru(unpack(payload), self.engine.n_gyro)
             t0 = float(t_bus[0])
-            status, m = self.clock.accept(t_bus, tt, dth, st, gq, ss, SS_LAST_SIRU, SS_T_MAX)
+            status, m = self._wire.accept(self.clock, t_bus, tt, dth, st, gq, ss, SS_LAST_SIRU,
+                                          SS_T_MAX)
             if status == WIRE_JUMP:
                 raise TimeJump("siru", t0, float(t_bus[-1]), float(ss[SS_T_MAX]),
                                (int(tt[0]), int(tt[-1])))
