@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from . import ud
+from .engine_layout import SLOTS, slot_problems
 from .flags import Flag
 from .geometry import Geometry
 from .model import contract_from_internal, contract_sigma_ud
@@ -79,36 +80,31 @@ class EngineState:
         self.locked_since = math.inf  # start of the current locked run of the time line [s]
 
     # ---------------------------------------------------------------- packed storage
-    # (owner, attribute) of every array the compiled fast path reads or writes, in the order of
-    # radical_rt.fastpath.unpack; "ws" is the UD workspace, "geo" the (copied) nominal triads.
-    _PACKED = (("", "excluded"), ("", "xp"), ("", "q"), ("", "A"), ("geo", "W"), ("geo", "U"),
-               ("geo", "V"), ("", "Minv"), ("", "Gp"), ("", "N"), ("", "Phi_aa"), ("", "Phi_ap"),
-               ("", "Q_aa"), ("", "par_y"), ("", "par_t"), ("", "acc_i"), ("", "acc_f"),
-               ("", "th_acc"), ("", "omega"), ("", "U"), ("", "d"), ("", "dx"), ("", "q_params"),
-               ("", "param_idx"), ("", "q_dt"), ("ws", "struct"), ("ws", "a"), ("ws", "var"),
-               ("", "conv_var"), ("", "kappa_last"), ("", "Hbuf"), ("", "r3"), ("", "H_att"),
-               ("", "H_phi"), ("", "Fbuf"), ("", "Sbuf"), ("", "innov"), ("", "sig"), ("ws", "f"),
-               ("ws", "v"), ("ws", "k"), ("", "st_sigma"), ("", "gyro_mask"), ("", "Hwbuf"),
-               ("", "zwbuf"), ("", "Lbuf"))
+    # the arrays the compiled release reads or writes: radical_rt.engine_layout.SLOTS
 
     def _pack(self) -> None:
-        """Move the arrays of :attr:`_PACKED` into three flat buffers (float64, int64, bool) and
-        make the attributes views of them, so a compiled call receives the whole state as a few
+        """Move the arrays of :data:`radical_rt.engine_layout.SLOTS` into three flat buffers
+        (float64, int64, bool; dtype and rank checked against the table) and make the attributes
+        views of them, so a compiled call receives the whole state as a few
         arrays (``_fb``, ``_ib``, ``_bb`` and the layout ``_lay``: offset, rows, columns, buffer
-        per array; radical_rt.fastpath.unpack). The geometry's nominal triads are copied (the
+        per array; radical_rt.engine_layout.unpack). The geometry's nominal triads are copied (the
         Geometry object keeps its own). Every array keeps its shape and is updated in place."""
-        arrays = [getattr(self if o == "" else getattr(self, o), name) for o, name in self._PACKED]
-        kinds = [2 if a.dtype == np.bool_ else 1 if a.dtype == np.int64 else 0 for a in arrays]
+        arrays = [getattr(self if s.owner == "" else getattr(self, s.owner), s.name)
+                  for s in SLOTS]
+        probs = [p for s, a in zip(SLOTS, arrays, strict=True) for p in slot_problems(s, a)]
+        if probs:  # a programming error (an array created with another dtype or rank)
+            raise TypeError("engine state does not fit radical_rt.engine_layout: "
+                            + "; ".join(probs))
         sizes = [0, 0, 0]
         lay = np.zeros((len(arrays), 4), np.int64)
-        for i, (a, kind) in enumerate(zip(arrays, kinds, strict=True)):
+        for i, (s, a) in enumerate(zip(SLOTS, arrays, strict=True)):
             r, c = (a.shape[0], a.shape[1]) if a.ndim == 2 else (a.shape[0], 0)
-            lay[i] = sizes[kind], r, c, kind
-            sizes[kind] += a.size
+            lay[i] = sizes[s.buffer], r, c, s.buffer
+            sizes[s.buffer] += a.size
         bufs = (np.zeros(sizes[0]), np.zeros(sizes[1], np.int64), np.zeros(sizes[2], np.bool_))
         self._fb, self._ib, self._bb = bufs
         self._lay = lay
-        for i, ((owner, name), a) in enumerate(zip(self._PACKED, arrays, strict=True)):
+        for i, ((owner, name, _b, _n), a) in enumerate(zip(SLOTS, arrays, strict=True)):
             o, r, c, kind = (int(x) for x in lay[i])
             view = bufs[kind][o:o + a.size].reshape(a.shape)
             view[...] = a

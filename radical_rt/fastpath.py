@@ -27,7 +27,8 @@ reference path would do something only Python does:
 Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
 
 ``E``: tuple of the engine's arrays, in the order unpacked below (all updated in place); the
-engine passes them packed in three flat buffers (``EngineState._pack``, :func:`unpack`), which
+engine passes them packed in three flat buffers (``EngineState._pack``, and
+:func:`radical_rt.engine_layout.unpack`, generated from the layout table), which
 costs one argument each instead of one per array when Python calls the kernel.
 ``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
 kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
@@ -42,7 +43,7 @@ import math
 import numpy as np
 
 from ._jit import inline_kernel, kernel
-from .engine_state import EngineState
+from .engine_layout import E_INDEX, unpack
 from .fastpath_layout import (
     CFG_ARW_VAR,
     CFG_EDIT,
@@ -101,12 +102,10 @@ _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
 MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
-# positions in E of the arrays used by index below (EngineState._PACKED is the order)
-_IX = {(f"{owner}.{name}" if owner else name): i
-       for i, (owner, name) in enumerate(EngineState._PACKED)}
+# positions in E of the arrays used by index below (radical_rt.engine_layout.SLOTS is the order)
 (_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _ACC_I, _ACC_F,
  _TH_ACC, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W, _VAR_W, _CONV_VAR,
- _KAPPA_LAST, _INNOV, _SIG, _OMEGA) = (_IX[k] for k in (
+ _KAPPA_LAST, _INNOV, _SIG, _OMEGA) = (E_INDEX[k] for k in (
     "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
     "Q_aa", "acc_i", "acc_f", "th_acc", "U", "d", "dx", "q_params", "param_idx", "q_dt",
     "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "innov", "sig", "omega"))
@@ -261,34 +260,6 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     if io[IO_WAKE_EVERY] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
         return R_ON_WINDOW
     return R_DONE
-
-
-@inline_kernel
-def _v1(buf, lay, i):
-    return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
-
-
-@inline_kernel
-def _v2(buf, lay, i):
-    o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
-    return buf[o:o + r * c].reshape((r, c))
-
-
-@inline_kernel
-def unpack(fb, ib, bb, lay):
-    """The array tuple E from the engine's packed buffers (EngineState._pack: float64 fb, int64
-    ib, bool bb, layout lay (k, 4) of offset, rows, columns, buffer)."""
-    return (_v1(bb, lay, 0), _v1(fb, lay, 1), _v1(fb, lay, 2), _v2(fb, lay, 3), _v2(fb, lay, 4),
-            _v2(fb, lay, 5), _v2(fb, lay, 6), _v2(fb, lay, 7), _v2(fb, lay, 8), _v2(fb, lay, 9),
-            _v2(fb, lay, 10), _v2(fb, lay, 11), _v2(fb, lay, 12), _v2(fb, lay, 13),
-            _v2(fb, lay, 14), _v1(ib, lay, 15), _v1(fb, lay, 16), _v1(fb, lay, 17),
-            _v1(fb, lay, 18), _v2(fb, lay, 19), _v1(fb, lay, 20), _v1(fb, lay, 21),
-            _v1(fb, lay, 22), _v1(ib, lay, 23), _v1(fb, lay, 24), _v2(fb, lay, 25),
-            _v1(fb, lay, 26), _v1(fb, lay, 27), _v1(fb, lay, 28), _v1(fb, lay, 29),
-            _v2(fb, lay, 30), _v1(fb, lay, 31), _v2(fb, lay, 32), _v2(fb, lay, 33),
-            _v2(fb, lay, 34), _v2(fb, lay, 35), _v1(fb, lay, 36), _v1(fb, lay, 37),
-            _v1(fb, lay, 38), _v1(fb, lay, 39), _v1(fb, lay, 40), _v1(fb, lay, 41),
-            _v1(bb, lay, 42), _v2(fb, lay, 43), _v1(fb, lay, 44), _v2(fb, lay, 45))
 
 
 @kernel

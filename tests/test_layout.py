@@ -102,3 +102,31 @@ def test_fastpath_layout_constants_are_the_table():
     cfg = F.CFG.unpack(eng._fast_cfg)
     assert cfg["n_gyro"] == eng.n_gyro and cfg["prop_window"] == eng.si.prop_window
     assert cfg["phi_p"] == cfg["phi_col"] - 3 and cfg["lat_p"] == cfg["lat_col"] - 3
+
+
+def test_engine_layout_packs_every_slot_as_declared():
+    """The packed engine state against its table: every slot's view has the declared buffer and
+    rank, views do not overlap, and the compiled unpack returns the same arrays (values and
+    shapes) as the engine's attributes."""
+    from radical_rt import engine_layout as EL
+    from radical_rt.filter import Engine
+
+    eng = Engine()
+    bufs = (eng._fb, eng._ib, eng._bb)
+    seen = [np.zeros(b.size, bool) for b in bufs]
+    for i, s in enumerate(EL.SLOTS):
+        o, r, c, kind = (int(x) for x in eng._lay[i])
+        assert kind == s.buffer and (c > 0) == (s.ndim == 2), s.key
+        n = r * max(c, 1)
+        assert not seen[kind][o:o + n].any(), f"{s.key} overlaps another slot"
+        seen[kind][o:o + n] = True
+    assert all(m.all() for m in seen)  # no unused element either
+    E = EL.unpack.py_func(eng._fb, eng._ib, eng._bb, eng._lay)
+    assert len(E) == len(EL.SLOTS)
+    for s, view in zip(EL.SLOTS, E, strict=True):
+        owner = eng if s.owner == "" else getattr(eng, s.owner)
+        attr = getattr(eng, "_geo_" + s.name) if s.owner == "geo" else getattr(owner, s.name)
+        assert view.shape == attr.shape and np.shares_memory(view, attr), s.key
+    bad = np.zeros((3, 3), np.int64)
+    assert EL.slot_problems(EL.SLOTS[EL.E_INDEX["U"]], bad) == [
+        "U: dtype int64, layout says float64"]
