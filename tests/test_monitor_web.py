@@ -86,11 +86,11 @@ class Publisher:
         self.session.close()
 
 
-def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 40.0) -> None:
+def _wait_http(url: str, proc: subprocess.Popen, log: Path, timeout: float = 40.0) -> None:
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         if proc.poll() is not None:
-            out = proc.stdout.read() if proc.stdout else ""
+            out = log.read_text(errors="replace")
             raise AssertionError(f"monitor web exited with {proc.returncode}: {out}")
         try:
             with urllib.request.urlopen(url, timeout=2) as r:
@@ -101,24 +101,24 @@ def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 40.0) -> None:
     raise AssertionError(f"{url} not up within {timeout} s")
 
 
-@pytest.mark.xfail(reason="open defect, 2026-12-02: with today's fresh install (eclipse-zenoh "
-                   "1.10.2, bokeh 3.9.2, Chromium 156) the flagged tlm and fault messages put "
-                   "after the page is up never reach the monitor (fault count 0, flags '-'); it "
-                   "fails the same at the landed 74ec47b. To be fixed, not ignored.", strict=False)
 @pytest.mark.timeout(150)
-def test_web_dashboard_live_in_chromium():
+def test_web_dashboard_live_in_chromium(tmp_path):
     sync_playwright = _require_browser()
     zport, wport = zconfig.free_port(), zconfig.free_port()
     zep = f"tcp/127.0.0.1:{zport}"
     pub = Publisher(zep)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    # the monitor's output goes to a file, not an undrained pipe: once a pipe's 64 KiB buffer
+    # is full, the monitor's next log line blocks the Bokeh IOLoop and the page freezes
+    log = tmp_path / "monitor_web.log"
+    logf = log.open("w")
     proc = subprocess.Popen(
         [sys.executable, "-m", "radical_rt.cli", "monitor", "web", "--port", str(wport),
          "--connect", zep, "--period-ms", "250"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+        stdout=logf, stderr=subprocess.STDOUT, text=True, env=env)
     url = f"http://127.0.0.1:{wport}/"
     try:
-        _wait_http(url, proc)
+        _wait_http(url, proc, log)
         pub.thread.start()
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
@@ -162,8 +162,13 @@ def test_web_dashboard_live_in_chromium():
                               "set": ["ST2_EDITED"], "cleared": [], "detail": {"nis": 42.0}})
             # wait for the page's models to hold it (Bokeh 3.9 / Chromium 156 no longer expose the
             # rendered Div text to Playwright's text locators, so the wait reads the models)
-            page.wait_for_function("""() => Bokeh.documents[0].get_model_by_name('status')
-                .text.includes('ST2_EDITED')""", timeout=10000)
+            try:
+                page.wait_for_function("""() => Bokeh.documents[0].get_model_by_name('status')
+                    .text.includes('ST2_EDITED')""", timeout=10000)
+            except Exception as e:  # diagnose instead of a bare timeout: page state + monitor log
+                st = page.evaluate("() => Bokeh.documents[0].get_model_by_name('status').text")
+                raise AssertionError(f"flag never shown ({e}); status: {st}; monitor log: "
+                                     f"{log.read_text(errors='replace')[-4000:]}") from e
             flag_names = page.evaluate("""() => Array.from(
                 Bokeh.documents[0].get_model_by_name('flags').data.flag)""")
             assert "ST2_EDITED" in flag_names
@@ -203,3 +208,5 @@ def test_web_dashboard_live_in_chromium():
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
+        logf.close()
+        print(f"monitor log: {log.stat().st_size} bytes")
