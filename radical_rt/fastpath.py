@@ -19,7 +19,7 @@ reference path would do something only Python does:
 * ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
   trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
   or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
-  ending), or, with io[10] set, after every tracker sample (an FDI hypothesis bank is running
+  ending), or, with io[IO_WAKE_EVERY] set, after every tracker sample (an FDI hypothesis bank is running
   that the kernel does not run itself), or after a tracker sample at which the bank the kernel
   runs (argument ``bk``) has its decision due.
   Python then runs :meth:`Engine.on_window` exactly as the reference path does.
@@ -29,19 +29,10 @@ Arguments shared by both kernels (built once by the engine, see ``Engine._fast_a
 ``E``: tuple of the engine's arrays, in the order unpacked below (all updated in place); the
 engine passes them packed in three flat buffers (``EngineState._pack``, :func:`unpack`), which
 costs one argument each instead of one per array when Python calls the kernel.
-``cfg`` (float64[18]): prop_window, arw_var [rad²/s], quant_var [rad²], regressor_k_sigma,
-parity_window, gyro_gap_s, parity_lag_s, st_stale_s, timing_consider_s, n_gyro, st_ref_stars,
-gate_st_nis, edit_enabled, φ2 state column, τ state column, φ2 index in xp, τ index in xp,
-st_min_stars.
-``io`` (float64[11]): [0] engine time t [s] (in/out), [1] locked_since [s] (in/out), [2] σ_t of
-the time line [s], [3] wake_t, [4] wake_e [s], [5] epoch of the oldest queued parity sum (inf if
-none), [6], [7] last valid ST1, ST2 epoch [s] (−inf if none), [8] the engine's mode (MODE_*;
-the window hook has work when update_mode would change it), [9] NIS of the tracker update (out),
-[10] 1.0: the window hook has work after every tracker sample (set by the caller, not loaded).
-``cnt`` (int64[8]): [0] flags (in/out), [1] samples propagated (+=), [2] undetermined windows
-(+=), [3] PROP_MASKED of the last propagate call (the caller sets −1), [4] kernel status (out), [5]
-1 if the tracker sample was edited (out), [6] 1 if a tracker update ran (out), [7] 1 if it
-treated the gyro calibration as consider states (out).
+``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
+kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
+and status codes (int64), declared in :mod:`radical_rt.fastpath_layout` (``CFG_*``, ``IO_*``,
+``CNT_*``; docs/engine.md lists them).
 """
 
 from __future__ import annotations
@@ -52,6 +43,46 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 from .engine_state import EngineState
+from .fastpath_layout import (
+    CFG_ARW_VAR,
+    CFG_EDIT,
+    CFG_GATE_NIS,
+    CFG_GYRO_GAP,
+    CFG_LAT_COL,
+    CFG_LAT_P,
+    CFG_N_GYRO,
+    CFG_PARITY_LAG,
+    CFG_PARITY_WINDOW,
+    CFG_PHI_COL,
+    CFG_PHI_P,
+    CFG_PROP_WINDOW,
+    CFG_QUANT_VAR,
+    CFG_REGRESSOR_K,
+    CFG_ST_MIN_STARS,
+    CFG_ST_REF_STARS,
+    CFG_ST_STALE,
+    CFG_TIMING_CONSIDER,
+    CNT_CONSIDER,
+    CNT_EDITED,
+    CNT_FLAGS,
+    CNT_MASKED,
+    CNT_STATUS,
+    CNT_UNDETERMINED,
+    CNT_UPDATED,
+    CNT_USED,
+    IO_LAST_ST,
+    IO_LAST_ST1,
+    IO_LAST_ST2,
+    IO_LOCKED_SINCE,
+    IO_MODE,
+    IO_NIS,
+    IO_PARITY_OLDEST,
+    IO_SIG_T,
+    IO_T,
+    IO_WAKE_E,
+    IO_WAKE_EVERY,
+    IO_WAKE_T,
+)
 from .fdi_bank import BI_ON, append_rows, bank_sample
 from .flags import Flag
 from .gyro_queue import predict_pending
@@ -67,7 +98,7 @@ from .updates import gated_update, gated_update_consider, timing_noise, unwhiten
 _ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
 _ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
 _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
-MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[8]: the engine's mode
+MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
 # positions in E of the arrays used by index below (EngineState._PACKED is the order)
@@ -89,19 +120,21 @@ def _close(E, cfg, io, cnt):
     acc_i, acc_f, th_acc, kappa_last = E[_ACC_I], E[_ACC_F], E[_TH_ACC], E[_KAPPA_LAST]
     U, d, q_params, param_idx, q_dt = E[_U], E[_D], E[_Q_PARAMS], E[_PARAM_IDX], E[_Q_DT]
     struct_w, a_w = E[_STRUCT_W], E[_A_W]
-    noise_var = cfg[1] * acc_f[0] + cfg[2]
+    noise_var = cfg[CFG_ARW_VAR] * acc_f[0] + cfg[CFG_QUANT_VAR]
     status, kappa = close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv,
-                                      int(cfg[9]), noise_var, cfg[3], q_params, param_idx, q_dt,
+                                      int(cfg[CFG_N_GYRO]), noise_var, cfg[CFG_REGRESSOR_K],
+                                      q_params, param_idx, q_dt,
                                       struct_w, a_w)
     kappa_last[0] = kappa
-    cnt[4] = status
-    t = io[0]
-    if status != 0 or acc_i[1] >= cfg[4] or io[5] <= t - cfg[6]:
+    cnt[CNT_STATUS] = status
+    t = io[IO_T]
+    if (status != 0 or acc_i[1] >= cfg[CFG_PARITY_WINDOW]
+            or io[IO_PARITY_OLDEST] <= t - cfg[CFG_PARITY_LAG]):
         return True
-    if io[2] > cfg[8]:  # Engine._update_lock_latch
-        io[1] = math.inf
-    elif io[1] == math.inf:
-        io[1] = t
+    if io[IO_SIG_T] > cfg[CFG_TIMING_CONSIDER]:  # Engine._update_lock_latch
+        io[IO_LOCKED_SINCE] = math.inf
+    elif io[IO_LOCKED_SINCE] == math.inf:
+        io[IO_LOCKED_SINCE] = t
     return False
 
 
@@ -109,9 +142,9 @@ def _close(E, cfg, io, cnt):
 def _window_due(E, cfg, io, cnt, t_event):
     """Whether Engine.on_window(t_event) would act (see the module docstring)."""
     excluded, U, d, var_w, conv_var = E[_EXCLUDED], E[_U], E[_D], E[_VAR_W], E[_CONV_VAR]
-    f = cnt[0]
-    f = (f | _ST1_STALE) if t_event - io[6] > cfg[7] else (f & ~_ST1_STALE)
-    f = (f | _ST2_STALE) if t_event - io[7] > cfg[7] else (f & ~_ST2_STALE)
+    f = cnt[CNT_FLAGS]
+    f = (f | _ST1_STALE) if t_event - io[IO_LAST_ST1] > cfg[CFG_ST_STALE] else (f & ~_ST1_STALE)
+    f = (f | _ST2_STALE) if t_event - io[IO_LAST_ST2] > cfg[CFG_ST_STALE] else (f & ~_ST2_STALE)
     if variances_within(U, d, var_w, conv_var, 3):
         f &= ~_NOT_CONVERGED
     else:
@@ -123,7 +156,8 @@ def _window_due(E, cfg, io, cnt, t_event):
         for i in range(excluded.shape[0]):
             if excluded[i]:
                 mode = MODE_DEGRADED
-    return f != cnt[0] or mode != io[8] or t_event >= io[3] or io[0] >= io[4]
+    return (f != cnt[CNT_FLAGS] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
+            or io[IO_T] >= io[IO_WAKE_E])
 
 
 @inline_kernel
@@ -140,7 +174,7 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt)
     Engine.gyro with an attitude does. Returns (reason R_*, index of the next sample)."""
     (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
      acc_f, th_acc, omega) = E[:19]
-    window, arw, gap_s = int(cfg[0]), cfg[1], cfg[5]
+    window, arw, gap_s = int(cfg[CFG_PROP_WINDOW]), cfg[CFG_ARW_VAR], cfg[CFG_GYRO_GAP]
     while k < upto:
         if dt[k] > gap_s:
             return R_SLOW, k
@@ -151,18 +185,18 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt)
             dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k, excluded,
             xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
             th_acc, window, arw, omega)
-        cnt[1] += k_next - k
+        cnt[CNT_USED] += k_next - k
         if pflags & PROP_UNDETERMINED:
-            cnt[2] += 1
-        cnt[3] = 1 if pflags & PROP_MASKED else 0
-        io[0] = t[k_next - 1]
+            cnt[CNT_UNDETERMINED] += 1
+        cnt[CNT_MASKED] = 1 if pflags & PROP_MASKED else 0
+        io[IO_T] = t[k_next - 1]
         k = k_next
         if acc_i[0] >= window:
             if _close(E, cfg, io, cnt):
                 return R_CLOSE_TAIL, k
             if _fold(E) > 0:
                 return R_NUMERIC_FOLD, k
-            if _window_due(E, cfg, io, cnt, io[0]):
+            if _window_due(E, cfg, io, cnt, io[IO_T]):
                 return R_ON_WINDOW, k
     return R_DONE, k
 
@@ -173,28 +207,29 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
     the residual and rows, the gated update, the fold and the window test, as Engine.tracker does
     once the attitude is initialized. An invalid sample returns R_TRACKER_PY at once (Python
-    counts it); otherwise io[6] or io[7] (last valid epoch) ← t_epoch first. Returns R_*."""
+    counts it); otherwise io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
     (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
      acc_f, th_acc, omega, U, d, dx, q_params, param_idx, q_dt, struct_w, a_w, var_w, conv_var,
      kappa_last, Hbuf, r3, H_att, H_phi, Fbuf, Sbuf, innov, sig, f_w, v_w, k_w, st_sigma,
      gyro_mask, Hwbuf, zwbuf, Lbuf) = E
-    cnt[6], cnt[7] = 0, 0
-    if not valid or n_stars < cfg[17]:
+    cnt[CNT_UPDATED], cnt[CNT_CONSIDER] = 0, 0
+    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:
         return R_TRACKER_PY
-    io[5 + j] = t_epoch
+    io[IO_LAST_ST + j] = t_epoch
     if acc_i[0] > 0 and _close(E, cfg, io, cnt):
         return R_CLOSE_TAIL
-    phi_col, lat_col, phi_p, lat_p = int(cfg[13]), int(cfg[14]), int(cfg[15]), int(cfg[16])
+    phi_col, lat_col = int(cfg[CFG_PHI_COL]), int(cfg[CFG_LAT_COL])
+    phi_p, lat_p = int(cfg[CFG_PHI_P]), int(cfg[CFG_LAT_P])
     H = Hbuf[:3]
-    rate2 = tracker_rows(q_meas, q, omega, t_epoch - xp[lat_p] - io[0], R_nom,
+    rate2 = tracker_rows(q_meas, q, omega, t_epoch - xp[lat_p] - io[IO_T], R_nom,
                          xp[phi_p:phi_p + 3], use_phi, phi_col, lat_col, r3, H_att, H_phi, H)
-    scale = math.sqrt(cfg[10] / max(n_stars, 1))
+    scale = math.sqrt(cfg[CFG_ST_REF_STARS] / max(n_stars, 1))
     rdiag = np.empty(3)
     for r in range(3):
         s = st_sigma[r] * scale
         rdiag[r] = s * s
-    sig_t = io[2]
-    gate, edit = cfg[11], cfg[12] != 0.0
+    sig_t = io[IO_SIG_T]
+    gate, edit = cfg[CFG_GATE_NIS], cfg[CFG_EDIT] != 0.0
     if sig_t * sig_t * rate2 / rdiag.min() > _TIMING_RATIO:  # Engine._tracker_update's timing term
         Rm = np.empty((3, 3))
         timing_noise(R_nom, omega, rdiag, sig_t, Rm)
@@ -202,8 +237,8 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
         if decorrelate(H, r3, Rm, Hw, zw, L) != 0:
             return R_TRACKER_SLOW  # nothing changed yet: Python takes the whole update
         ones = np.ones(3)
-        if sig_t > cfg[8]:  # Schmidt consider on the gyro calibration
-            cnt[7] = 1
+        if sig_t > cfg[CFG_TIMING_CONSIDER]:  # Schmidt consider on the gyro calibration
+            cnt[CNT_CONSIDER] = 1
             status, nis, edited = gated_update_consider(
                 U, d, dx, Hw, zw, ones, gate, edit, gyro_mask, Fbuf[:3], Sbuf[:3, :3], innov[:3],
                 sig[:3], f_w, v_w, k_w, a_w)
@@ -215,15 +250,15 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     else:
         status, nis, edited = gated_update(U, d, dx, H, r3, rdiag, gate, edit, Fbuf[:3],
                                            Sbuf[:3, :3], innov[:3], sig[:3], f_w, v_w, k_w)
-    cnt[4], cnt[5], cnt[6] = status, 1 if edited else 0, 1
-    io[9] = nis
+    cnt[CNT_STATUS], cnt[CNT_EDITED], cnt[CNT_UPDATED] = status, 1 if edited else 0, 1
+    io[IO_NIS] = nis
     if status != 0:
         return R_VEC_STATUS
     bit = _ST1_EDITED if j == 1 else _ST2_EDITED
-    cnt[0] = (cnt[0] & ~bit) | (bit if edited else 0)
+    cnt[CNT_FLAGS] = (cnt[CNT_FLAGS] & ~bit) | (bit if edited else 0)
     if _fold(E) > 0:
         return R_NUMERIC_FOLD
-    if io[10] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
+    if io[IO_WAKE_EVERY] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
         return R_ON_WINDOW
     return R_DONE
 
@@ -282,11 +317,13 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     the kernel completes goes through :func:`radical_rt.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at the same sample as the reference path.
-    s_t .. s_flags: the engine's scalar state, loaded into io[0:9] and cnt[0] (cnt[1:4] ← 0, 0,
+    s_t .. s_flags: the engine's scalar state, loaded into io[IO_T..IO_MODE]
+    and cnt[CNT_FLAGS] (cnt[CNT_USED..CNT_MASKED] ← 0, 0,
     −1) first (module docstring; FastRelease._fast_begin)."""
-    io[0], io[1], io[2], io[3], io[4] = s_t, s_locked, s_sig_t, wake_t, wake_e
-    io[5], io[6], io[7], io[8] = s_parity, s_last1, s_last2, s_mode
-    cnt[0], cnt[1], cnt[2], cnt[3] = s_flags, 0, 0, -1
+    io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
+    io[IO_WAKE_T], io[IO_WAKE_E], io[IO_PARITY_OLDEST] = wake_t, wake_e, s_parity
+    io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
+    cnt[CNT_FLAGS], cnt[CNT_USED], cnt[CNT_UNDETERMINED], cnt[CNT_MASKED] = s_flags, 0, 0, -1
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -303,13 +340,15 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
         j = ev_i[e, 0]
         reason = _tracker_step(j, epoch, ev_f[e, 1:5], ev_i[e, 1], ev_i[e, 2] != 0,
                                R1 if j == 1 else R2, j == 2, E, cfg, io, cnt)
-        evo_i[e, 0], evo_i[e, 1], evo_i[e, 2], evo_i[e, 3] = cnt[4], cnt[5], cnt[6], cnt[7]
-        evo_f[e, 0] = io[9]
+        evo_i[e, 0], evo_i[e, 1] = cnt[CNT_STATUS], cnt[CNT_EDITED]
+        evo_i[e, 2], evo_i[e, 3] = cnt[CNT_UPDATED], cnt[CNT_CONSIDER]
+        evo_f[e, 0] = io[IO_NIS]
         for r in range(3):
             evo_f[e, 1 + r] = innov[r]
             evo_f[e, 4 + r] = sig[r]
         if reason == R_DONE and bk_on[BI_ON] != 0 and bank_sample(
-                bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2, io[2], E[_W],
+                bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
+                io[IO_SIG_T], E[_W],
                 E[_UAX], E[_VAX]):
             reason = R_ON_WINDOW  # the bank's decision is due: Python takes it (on_window)
         if reason != R_DONE:

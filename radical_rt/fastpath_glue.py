@@ -18,13 +18,14 @@ from collections.abc import Callable
 import numpy as np
 
 from . import fastpath as fp
+from . import fastpath_layout as FL
 from .fdi_hypotheses import idle_kernel_args
 from .flags import Flag
 
 _ST_KIND = {1: "st1", 2: "st2"}
 _ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
 _MODE_CODE = {"converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
-              "degraded": fp.MODE_DEGRADED}  # io[8] of radical_rt.fastpath ("init": −1)
+              "degraded": fp.MODE_DEGRADED}  # IO_MODE of radical_rt.fastpath_layout ("init": −1)
 
 
 def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -89,8 +90,9 @@ class FastRelease:
                 gbuf.end += z - a
                 g_end = -1
             # _fast_end: the scalar state back from the io arrays
-            self.t, self.locked_since = io[:2].tolist()
-            self.flags, used, undetermined, masked = cnt[:4].tolist()
+            self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
+            self.flags, used = int(cnt[FL.CNT_FLAGS]), int(cnt[FL.CNT_USED])
+            undetermined, masked = int(cnt[FL.CNT_UNDETERMINED]), int(cnt[FL.CNT_MASKED])
             if used:
                 self.counters["siru_used"] += used
             if undetermined:
@@ -170,7 +172,7 @@ class FastRelease:
     def _window_done(self, reason: int) -> None:
         """Python's share of a window close the gyro fast path handed over."""
         if reason == fp.R_CLOSE_TAIL:
-            self._check(int(self._fast_cnt[4]))
+            self._check(int(self._fast_cnt[FL.CNT_STATUS]))
             self._close_tail()
             self._apply_correction()
         elif reason == fp.R_NUMERIC_FOLD:
@@ -185,12 +187,12 @@ class FastRelease:
         last ten arguments of :func:`fastpath.fast_release`; :meth:`release` takes it back after
         each call): t, locked_since, σ of the time line, wake_t, wake_e, epoch of the oldest
         queued parity sum, last valid epochs of ST1 and ST2, mode code, flags. It also sets
-        io[10] (the window hook after every tracker sample) from the FDI (a bank that the kernel
+        IO_WAKE_EVERY (the window hook after every tracker sample) from the FDI (a bank that the kernel
         cannot run itself)."""
         last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
         wake_e = math.inf if fdi is None else fdi.wake_time()
-        # io[10]: the FDI's bank wants the window hook after every tracker sample
-        self._fast_io[10] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
+        # the FDI's bank wants the window hook after every tracker sample
+        self._fast_io[FL.IO_WAKE_EVERY] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
         if src is None:
             wake_t = math.inf
         else:  # the listener's (the stream's packets and flags)
@@ -203,13 +205,17 @@ class FastRelease:
     def _fast_config(self) -> None:
         """Scalar parameters and io arrays of the fast path (after every parameter change)."""
         si = self.si
-        self._fast_cfg = np.array([
-            si.prop_window, si.arw_var_per_s, si.quant_var, si.regressor_k_sigma, si.parity_window,
-            si.gyro_gap_s, si.parity_lag_s, si.st_stale_s, si.timing_consider_s, self.n_gyro,
-            si.st_ref_stars, si.gate_st_nis, 1.0 if si.edit_enabled else 0.0, self._phi_col,
-            self._lat_col, self._phi_col - 3, self._lat_col - 3, si.st_min_stars], dtype=np.float64)
-        self._fast_io = np.zeros(11)
-        self._fast_cnt = np.zeros(8, np.int64)
+        self._fast_cfg = FL.CFG.pack({
+            "prop_window": si.prop_window, "arw_var": si.arw_var_per_s, "quant_var": si.quant_var,
+            "regressor_k": si.regressor_k_sigma, "parity_window": si.parity_window,
+            "gyro_gap": si.gyro_gap_s, "parity_lag": si.parity_lag_s,
+            "st_stale": si.st_stale_s, "timing_consider": si.timing_consider_s,
+            "n_gyro": self.n_gyro, "st_ref_stars": si.st_ref_stars,
+            "gate_nis": si.gate_st_nis, "edit": 1.0 if si.edit_enabled else 0.0,
+            "phi_col": self._phi_col, "lat_col": self._lat_col, "phi_p": self._phi_col - 3,
+            "lat_p": self._lat_col - 3, "st_min_stars": si.st_min_stars})
+        self._fast_io = np.zeros(FL.IO.end)
+        self._fast_cnt = np.zeros(FL.CNT.end, np.int64)
 
     # callable() → (wake_t, wake_e) of the listener (the stream's packets): the event time and
     # the engine time from which on_window has work although the flags stay the same (−inf: at

@@ -9,6 +9,7 @@ about x, y and z, which must end converged with the warning cleared. ≈ 6 s.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from radical_rt.design import plan as planmod
 from radical_rt.design.covariance import new_engine, run_plan
@@ -78,3 +79,20 @@ def test_dashboard_line():
     rep = dict(eng.excitation.report(), not_excited=["lam", "du"])
     assert "NOT EXCITED: lam, du" in excitation_text(rep)
     assert excitation_text(rep).endswith("(axes not yet turned about: y)")
+
+
+def test_rotationrotation_angle_between_attitudes_matches_scipy_at_every_scale():
+    """The monitor's accumulated rotation: the angle of p⁻¹∘q, pinned against scipy from 1e-8 rad
+    (where 2·acos(|p·q|) keeps only half the digits) to nearly π."""
+    from scipy.spatial.transform import Rotation
+
+    from radical_rt.excitation import rotation_angle_between
+
+    rng = np.random.default_rng(11)
+    for angle in (1e-8, 1e-6, 1e-4, 0.01, 0.5, 2.0, 3.1):
+        p = Rotation.random(random_state=int(rng.integers(1 << 30)))
+        axis = rng.normal(size=3)
+        q = p * Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle)
+        got = rotation_angle_between(p.as_quat(), q.as_quat())
+        assert got == pytest.approx((p.inv() * q).magnitude(), rel=1e-9, abs=1e-15)
+        assert got == pytest.approx(angle, rel=1e-7)
