@@ -333,8 +333,14 @@ def table_rows(data: list[ArchiveData], group: str) -> tuple[list[str], list[dic
         elements = [r for r in paper_rows(est, sig, tr) if r["group"] == group]
         for r, e, s in zip(elements, d.final_est[group], d.final_sig[group], strict=True):
             r["estimate"], r["sigma"] = e, s  # exactly the packet's values (no round trip)
-        out.append({"label": d.label, "path": d.path, "t_end": d.t_end, "elements": elements})
+        out.append({"label": d.label, "path": d.path, "t_end": d.t_end, "elements": elements,
+                    "flags": d.last.get("flags")})
     return names, out
+
+
+def _gyro_failed(flags: Any, i: int) -> bool:
+    """True when GYRO_<A+i>_FAILED (bit 1 + i, CONTRACT §3.1) is set in ``flags``."""
+    return isinstance(flags, int) and i < 4 and bool(flags >> (1 + i) & 1)
 
 
 def table_markdown(data: list[ArchiveData], group: str) -> str:
@@ -351,6 +357,8 @@ def table_markdown(data: list[ArchiveData], group: str) -> str:
         for i in range(len(names)):
             e = r["elements"][i] if i < len(r["elements"]) else None
             cells += [_fmt(e["estimate"], dg), _fmt(e["sigma"], dg + 1)] if e else ["—", "—"]
+            if e and group != "phi2" and _gyro_failed(r.get("flags"), i):
+                cells[-2] = f"FAILED {cells[-2]}"
         lines.append("| " + " | ".join(cells) + " |")
     if any(r["elements"] and "truth" in r["elements"][0] for r in trows):
         lines += ["", f"Truth (/truth/params at t_end) and error/σ, {unit}:", ""]
@@ -851,6 +859,15 @@ def make_report(paths: list[str], out_dir: str | Path, labels: str | None = None
                                 "Figure 8 analog: ST2 misalignment side by side", temps=True)
             figs.append(("fig8.png", "Figure 8: ST2 misalignment estimates and σ (with ST2 "
                          "baseplate temperature), archives side by side"))
+        from monitors.report_ops import load_ops
+        from monitors.report_ops_fig import figure_ops, write_html
+
+        ops = [load_ops(d.path, d.label, max_points) for d in data]
+        for o in ops:
+            figure_ops(o, out / f"ops_{safe_name(o.label)}.png")
+            figs.append((f"ops_{safe_name(o.label)}.png", f"Operations ({o.label}): attitude, "
+                         "rates, attitude error, latency, clock, NIS, flags; streams apart"))
+        write_html(out, ops, "".join(_md_table_to_html(tables_md[g]) for g in groups))
     write_index(out, data, tables_md, figs)
     from monitors.calreport import write_calibration_report
 
