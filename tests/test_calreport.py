@@ -54,7 +54,7 @@ def test_self_contained_with_every_section(report):
                   "Table 7. Gyro misalignment δv", "3. Convergence", "4. Residuals and NIS",
                   "5. Edits and faults", "6. Figures"):
         assert html.escape(title) in h or title in h, title
-    assert len(srcs) == 3  # Figures 4, 5, 6 of one archive
+    assert len(srcs) == 4  # Figures 4, 5, 6 and the operations view (report_ops) of one archive
     assert "run21" in h and "σ_end / σ_0" in h
 
 
