@@ -56,6 +56,7 @@ from monitors.common import (
     safe_name,
 )
 from radical_rt.conventions import SI_PER_PAPER_UNIT
+from radical_rt.flags import GYRO_FAILED
 from radical_rt.paper_table import rows as paper_rows
 
 TLM_TOPICS = ("/tlm/large", "/tlm/medium")
@@ -339,8 +340,8 @@ def table_rows(data: list[ArchiveData], group: str) -> tuple[list[str], list[dic
 
 
 def _gyro_failed(flags: Any, i: int) -> bool:
-    """True when GYRO_<A+i>_FAILED (bit 1 + i, CONTRACT §3.1) is set in ``flags``."""
-    return isinstance(flags, int) and i < 4 and bool(flags >> (1 + i) & 1)
+    """True when gyro i's GYRO_<A+i>_FAILED bit (radical_rt.flags.GYRO_FAILED) is set."""
+    return isinstance(flags, int) and i < len(GYRO_FAILED) and bool(flags & int(GYRO_FAILED[i]))
 
 
 def table_markdown(data: list[ArchiveData], group: str) -> str:

@@ -88,7 +88,7 @@ def _truth_attitude(reader: Any) -> tuple[np.ndarray, np.ndarray]:
     return np.array(ts), np.array(qs, dtype=float).reshape(-1, 4)
 
 
-def attitude_error(q: np.ndarray, tq: np.ndarray, t: np.ndarray, t_true: np.ndarray,
+def attitude_error(q: np.ndarray, t: np.ndarray, t_true: np.ndarray,
                    q_true: np.ndarray) -> np.ndarray:
     """Small-angle error (3,) arcsec per packet: q_est ⊗ q_true⁻¹ at the nearest truth sample
     (scalar-last quaternions); NaN where no truth within 1 s."""
@@ -151,13 +151,11 @@ def load_ops(path: str, label: str, max_points: int = 1500) -> OpsData:
     d = OpsData(label=label, t=t, stream=stream, x=x, boundaries=bounds, q=q, omega=om, lat=lat,
                 clk=clk, nis=nis, flags=flags)
     if len(t_true) and np.isfinite(q).all():
-        d.att_err = attitude_error(q, None, t, t_true, q_true)
-    for f, ns in faults:
+        d.att_err = attitude_error(q, t, t_true, q_true)
+    for f, ns in faults if len(t) else []:
         if isinstance(f, dict):
-            tf = _num(f.get("t", ns * 1e-9))
-            near = int(np.argmin(np.abs(t - tf))) if len(t) else 0
-            if len(t):
-                d.fault_x.append((float(x[near]), ",".join(map(str, f.get("set") or [])) or "clear"))
+            near = int(np.argmin(np.abs(t - _num(f.get("t", ns * 1e-9)))))
+            d.fault_x.append((float(x[near]), ",".join(map(str, f.get("set") or [])) or "clear"))
     return d
 
 

@@ -104,14 +104,14 @@ class EngineState:
         bufs = (np.zeros(sizes[0]), np.zeros(sizes[1], np.int64), np.zeros(sizes[2], np.bool_))
         self._fb, self._ib, self._bb = bufs
         self._lay = lay
-        for i, ((owner, name, _b, _n), a) in enumerate(zip(SLOTS, arrays, strict=True)):
-            o, r, c, kind = (int(x) for x in lay[i])
-            view = bufs[kind][o:o + a.size].reshape(a.shape)
+        for i, (s, a) in enumerate(zip(SLOTS, arrays, strict=True)):
+            o = int(lay[i, 0])
+            view = bufs[s.buffer][o:o + a.size].reshape(a.shape)
             view[...] = a
-            if owner == "geo":  # keep the Geometry untouched: the engine's own copies
-                setattr(self, "_geo_" + name, view)
+            if s.owner == "geo":  # keep the Geometry untouched: the engine's own copies
+                setattr(self, "_geo_" + s.name, view)
             else:
-                setattr(self if owner == "" else getattr(self, owner), name, view)
+                setattr(self if s.owner == "" else getattr(self, s.owner), s.name, view)
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Copies (copy.deepcopy, pickle) copy each view on its own: put the copied arrays back

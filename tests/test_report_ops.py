@@ -56,7 +56,7 @@ def test_attitude_error_against_truth():
     arcsec = np.pi / 180 / 3600
     qe = (R.from_rotvec([10 * arcsec, 0, 0]) * R.from_quat(qt)).as_quat()
     t = np.arange(5.0)
-    err = attitude_error(qe, None, t, t, qt)
+    err = attitude_error(qe, t, t, qt)
     assert err[:, 0] == pytest.approx(10.0, rel=1e-3) and np.abs(err[:, 1:]).max() < 1e-6
 
 
