@@ -317,7 +317,9 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
         for r in range(3):
             evo_f[e, 1 + r] = innov[r]
             evo_f[e, 4 + r] = sig[r]
-        if reason == R_DONE and bk_on[BI_ON] != 0 and bank_sample(
+        # the bank takes every sample whose update the kernel completed, also one after which
+        # the window hook has work (R_ON_WINDOW: Python then finds the bank caught up)
+        if (reason == R_DONE or reason == R_ON_WINDOW) and bk_on[BI_ON] != 0 and bank_sample(
                 bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
                 io[IO_SIG_T], E[_W],
                 E[_UAX], E[_VAX]):

@@ -96,6 +96,7 @@ class FaultMonitor:
         self._next_check = -math.inf
         self._sum_seen = False  # a parity sum closed since the last bookkeeping
         self._t_decided = -math.inf  # engine time of the running bank's last decision
+        self._llr: tuple = (None, 0.0)  # (fdi_isolation_error_prob, llr_threshold) last computed
         self.failed_by_fdi: set[int] = set()
         self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
         self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
@@ -119,8 +120,11 @@ class FaultMonitor:
         return self.det
 
     def llr_threshold(self, eng) -> float:
-        p = float(self._p(eng, "isolation_error_prob", 1e-6))
-        return -math.log(max(min(p, 0.5), 1e-300))
+        """The bank's decision margin: −ln(fdi_isolation_error_prob) (cached by value)."""
+        p = self._p(eng, "isolation_error_prob", 1e-6)
+        if p != self._llr[0]:
+            self._llr = (p, -math.log(max(min(float(p), 0.5), 1e-300)))
+        return self._llr[1]
 
     # ------------------------------------------------------------------ hooks (engine → FDI)
     def on_gyro(self, t, dt, dtheta, status, bridged, var_extra) -> None:

@@ -158,6 +158,24 @@ def bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, FPtp, GPpp, T):
 
 
 @kernel
+def transition_clear(Phi_aa, Phi_ap, Q_aa, Ptt):
+    """Whether every hypothesis's accumulated transition is the identity (Phi_aa = I, Phi_ap = 0,
+    Q_aa = 0; shapes of :func:`bank_propagate`) and its Ptt (nh, 3, 3) exactly symmetric:
+    :func:`bank_flush` would then leave Ptt and Ptp as they are, bit for bit (a second tracker
+    at the same epoch: about half of the bank's samples)."""
+    for h in range(Phi_aa.shape[0]):
+        for r in range(3):
+            for c in range(3):
+                if (Phi_aa[h, r, c] != (1.0 if r == c else 0.0) or Q_aa[h, r, c] != 0.0
+                        or Ptt[h, r, c] != Ptt[h, c, r]):
+                    return False
+            for c in range(Phi_ap.shape[2]):
+                if Phi_ap[h, r, c] != 0.0:
+                    return False
+    return True
+
+
+@kernel
 def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extrap, st_sigma,
                  ref_stars, sig_t, gate, q, omega, Ptt, Ptp, Ppp, ll, nis, nis_k, logdet_k, W33, W3p,
                  W4):
@@ -311,13 +329,15 @@ def bank_step(f, st, br, i0, end, q_meas, n_stars, epoch, R_nom, use_phi, phi, p
               arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, ll, nis,
               nis_k, logdet_k, par_y, par_t, acc_i, acc_f, th_acc, W33, W3p, W4):
     """One tracker sample of the bank in one call: :func:`bank_propagate` through the gyro samples
-    up to its epoch [s], :func:`bank_flush`, then :func:`bank_tracker` with the attitude
+    up to its epoch [s], :func:`bank_flush` (skipped when no transition is pending, which leaves
+    Ptt and Ptp bit for bit as the flush would), then :func:`bank_tracker` with the attitude
     extrapolated by epoch − τ̂ − tlast (τ̂ = tau [s], the snapshot's latency). Arguments as in those
     kernels. Returns the number of hypotheses whose S was not positive definite."""
-    bank_propagate(f, st, br, i0, end, epoch, masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none,
-                   arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, par_y, par_t,
-                   acc_i, acc_f, th_acc)
-    bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, W3p[0], W3p[1], W33[10])
+    m = bank_propagate(f, st, br, i0, end, epoch, masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none,
+                       arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, par_y, par_t,
+                       acc_i, acc_f, th_acc)
+    if m > 0 or not transition_clear(Phi_aa, Phi_ap, Q_aa, Ptt):
+        bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, W3p[0], W3p[1], W33[10])
     return bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col,
                         epoch - tau - tlast[0], st_sigma, ref_stars, sig_t, gate, q, omega, Ptt,
                         Ptp, Ppp, ll, nis, nis_k, logdet_k, W33, W3p, W4)

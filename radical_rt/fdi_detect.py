@@ -11,6 +11,7 @@ Used by :class:`radical_rt.fdi.FaultMonitor`; the bank's consistency test uses :
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -28,10 +29,16 @@ def chi2_1_isf(a: float) -> float:
     return _NORMAL.inv_cdf(0.5 * a) ** 2
 
 
+@functools.lru_cache(maxsize=64)
+def _normal_isf(p: float) -> float:
+    """z with P(N(0, 1) > z) = p (cached: the bank asks for one p thousands of times)."""
+    return -_NORMAL.inv_cdf(p)
+
+
 def chi2_isf(p: float, dof: int) -> float:
     """T with P(χ²_dof > T) ≈ p (Wilson–Hilferty; at p = 1e-4 it is 3.5 % high for dof = 3 and
     within 0.4 % for dof ≥ 30; the bank uses dof = 3 × tracker samples)."""
-    z = -_NORMAL.inv_cdf(p)
+    z = _normal_isf(p)
     c = 2.0 / (9.0 * dof)
     return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 

@@ -65,15 +65,22 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     active = np.empty(n, dtype=np.bool_)
     flags = 0
     k = i0
+    have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
+    have_ok = False
     while k < m and acc_i[0] < window:
         n_act = 0
+        bits = 0
         for i in range(n):
             active[i] = (not excluded[i]) and ((status[k] >> i) & 1) == 0
-            n_act += 1 if active[i] else 0
+            if active[i]:
+                n_act += 1
+                bits |= 1 << i
         G, Mi = Gp, Minv
         if n_act < n:
             flags |= PROP_MASKED
-            if masked_pinv(A, active, Mm, Gm) < 0:
+            if bits != have:  # A is constant over the call: one pseudo-inverse per pattern
+                have, have_ok = bits, masked_pinv(A, active, Mm, Gm) >= 0
+            if not have_ok:
                 flags |= PROP_UNDETERMINED
                 k += 1
                 continue
