@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ._jit import OK, kernel
 from .model import apply_body_rotation, tracker_residual
 from .propagate import PROP_UNDETERMINED, propagate_window
@@ -209,6 +211,21 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
     for i in range(3):
         sg = st_sigma[i] * fac
         rdiag[i] = sg * sg
+    # the columns of H_p that can be nonzero (φ2 for ST2, τ), ascending: the sums below run over
+    # them only, in the order (and with the zero tests) of a sweep over all npar columns
+    cols = np.empty(4, np.int64)
+    ncol = 0
+    if use_phi:
+        for c in range(3):
+            cols[ncol] = phi_col + c
+            ncol += 1
+    if lat_col >= 0 and not (use_phi and phi_col <= lat_col < phi_col + 3):  # (τ overwrites φ2)
+        cols[ncol] = lat_col
+        ncol += 1
+        i = ncol - 1
+        while i > 0 and cols[i - 1] > cols[i]:
+            cols[i - 1], cols[i] = cols[i], cols[i - 1]
+            i -= 1
     bad = 0
     for h in range(nh):
         for i in range(4):
@@ -219,8 +236,6 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
             apply_body_rotation(qe, v, w4, dq)
         tracker_residual(q_meas, qe, R_nom, phi, use_phi, r, Ha, Hphi)
         for a in range(3):
-            for c in range(npar):
-                Hp[a, c] = 0.0
             if use_phi:
                 for c in range(3):
                     Hp[a, phi_col + c] = Hphi[a, c]
@@ -233,13 +248,15 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
             for b in range(3):
                 s1 = P[a, 0] * Ha[b, 0] + P[a, 1] * Ha[b, 1] + P[a, 2] * Ha[b, 2]
                 s2 = 0.0
-                for c in range(npar):
+                for ic in range(ncol):
+                    c = cols[ic]
                     if Hp[b, c] != 0.0:
                         s2 += C[a, c] * Hp[b, c]
                 PHt[a, b] = s1 + s2
             for c in range(npar):
                 HpPpp[a, c] = 0.0
-            for k in range(npar):
+            for ic in range(ncol):
+                k = cols[ic]
                 hk = Hp[a, k]
                 if hk != 0.0:
                     for c in range(npar):
@@ -252,7 +269,8 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
                 s1 = Ha[a, 0] * PHt[0, b] + Ha[a, 1] * PHt[1, b] + Ha[a, 2] * PHt[2, b]
                 s2 = 0.0
                 s3 = 0.0
-                for c in range(npar):
+                for ic in range(ncol):
+                    c = cols[ic]
                     if Hp[a, c] != 0.0:
                         s2 += Hp[a, c] * Y[b, c]
                     if Hp[b, c] != 0.0:
