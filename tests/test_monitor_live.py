@@ -108,6 +108,60 @@ def test_hub_rows_rollover_and_flags():
     assert all(f[2] == "fault" for f in fl)
 
 
+def test_hub_keeps_every_packet_between_polls():
+    """Issue #21: the history kept only the newest packet per poll. 50 packets arriving between
+    two polls (a loaded UI) all become rows, in order; the store's ring bounds the backlog."""
+    pytest.importorskip("bokeh")
+    from monitors.web import Hub
+
+    s = LatestStore(clock=Clock(), history_keep=40)
+    hub = Hub(s, keep=1000)
+    for k in range(10):
+        s.put("v", "tlm/large", msgpack.packb(large_packet(seq=k, t=100.0 + k)))
+    hub.poll()
+    for k in range(10, 60):  # 50 more before the next poll
+        s.put("v", "tlm/large", msgpack.packb(large_packet(seq=k, t=100.0 + k)))
+    hub.poll()
+    rows, total = hub.rows_since("v", 0)
+    # all 10 of the first poll, then the 40 of the next 50 still in the store's ring of 40
+    assert total == 50 and [r["t"] for r in rows] == [100.0 + k for k in [*range(10),
+                                                                          *range(20, 60)]]
+    assert [n for n, _m in s.since("v", "tlm/large", 59)] == [60]  # numbered 1.. on arrival
+    hub.poll()
+    assert hub.rows_since("v", 50) == ([], 50)  # nothing new, nothing repeated
+
+
+def test_robust_range_clips_the_transient_and_current_values_table():
+    pytest.importorskip("bokeh")
+    import numpy as np
+
+    from monitors.web import current_html, stale_html
+    from monitors.web_figs import robust_range
+
+    rng = np.random.default_rng(1)
+    converged = rng.normal(0.0, 2.0, 290)  # arcsec
+    transient = np.linspace(-3000.0, 3000.0, 10)  # the first packets of a cold start
+    lo, hi = robust_range(np.concatenate([transient, converged]))
+    assert -15.0 < lo < -3.0 and 3.0 < hi < 15.0  # the converged residuals fill the plot
+    assert robust_range(np.array([math.nan, math.nan])) is None
+    lo, hi = robust_range(np.full(5, 7.0))
+    assert lo < 7.0 < hi  # a flat line still gets a span
+
+    pkt = large_packet(flags=int(Flag.GYRO_B_FAILED))
+    pkt["latency"] = {"estimate_s": 0.117, "sigma_s": 0.0021}
+    pkt["excluded"] = [2]
+    page = current_html(pkt, int(Flag.GYRO_B_FAILED))
+    for want in ("q body←inertial [x y z w]", "+0.000000 +0.000000 +0.000000 +1.000000",
+                 "Euler 3-2-1 yaw pitch roll [deg]", "rate ω body x y z [deg/s]",
+                 "117.00 ± 2.10", "reconstruct, locked, +40.010 ppm", "GYRO_B_FAILED",
+                 "B FAILED", "C excluded", "λ [ppm]", "-261.4 ± 3.40", "δa2 (ST2) [arcsec]",
+                 "b [deg/hr]", "0.5026 ± 0.00220", "✗ FAILED", "✗ excluded"):
+        assert want in page, want
+    assert current_html(None, None).startswith("<i>no tlm")
+    assert stale_html(None, 5.0) == "" and stale_html(4.9, 5.0) == ""
+    assert "STALE DATA: no packet for 7 s" in stale_html(7.0, 5.0)
+
+
 @pytest.mark.zenoh
 @pytest.mark.timeout(60)
 def test_zenoh_source_on_loopback():
