@@ -54,8 +54,8 @@ def _kv_table(title: str, rows: list[tuple[str, str]]) -> Table:
               expand=True)
     t.add_column(style="bold cyan", no_wrap=True)
     t.add_column()
-    for k, v in rows:
-        t.add_row(k, v)
+    for k, v in rows:  # Text: "[deg]" and the like are units, not rich markup
+        t.add_row(Text(k), Text(v))
     return t
 
 

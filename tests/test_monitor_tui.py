@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import io
 import math
+from pathlib import Path
 
 import pytest
 
@@ -179,7 +180,8 @@ def test_tui_started_before_data_renders_full_values_and_survives_resize(Monitor
             gyro_row = next(line for line in rendered_lines(params) if "gyro status" in line)
             assert "FAILED" in gyro_row and "excluded" in gyro_row
             current = text_of(app.query_one("#current"))
-            assert "117.00 ± 2.10" in current  # tracker latency ± 1σ, ms
+            assert "tracker latency ± 1σ [ms]" in current and "117.00 ± 2.10" in current
+            assert "Euler 3-2-1 yaw pitch roll [deg]" in current  # units shown, not eaten as markup
             assert "C FAILED" in current and "D excluded" in current
             assert "+0.000000 +0.000000 +0.000000 +1.000000" in current
             assert "+0.0573" in current  # ω_y = 1 mrad/s in deg/s
@@ -189,6 +191,11 @@ def test_tui_started_before_data_renders_full_values_and_survives_resize(Monitor
             for w in want:
                 assert w in screen, f"after resize: {w!r} truncated or missing in:\n{screen}"
             assert "STALE" not in text_of(app.query_one("#status"))
+            artifacts = Path(__file__).parent / "artifacts"
+            artifacts.mkdir(exist_ok=True)
+            if not (artifacts / ".gitignore").exists():  # keep screenshots out of git
+                (artifacts / ".gitignore").write_text("*\n")
+            app.save_screenshot(filename="monitor_tui.svg", path=str(artifacts))
             clock.now += 3.0  # no packet for 3 s of the receiver clock > stale_s = 2
             await pilot.pause(0.2)
             assert "STALE DATA" in text_of(app.query_one("#status"))

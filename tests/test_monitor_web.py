@@ -294,3 +294,6 @@ def _check_current_values_boresight_history_and_stale(page, pub: Publisher, log:
     page.wait_for_function("""() => Bokeh.documents[0].get_model_by_name('stale').text
         .includes('STALE DATA')""", timeout=30000)
     assert f"alarm after {STALE_S:g} s" in _model(page, "stale", "m.text")
+    page.get_by_text("attitude & residuals", exact=True).click()
+    time.sleep(1.0)  # let the canvases draw (a picture for the docs, not an assertion)
+    page.screenshot(path=str(ARTIFACTS / "monitor_web_stale.png"), full_page=True)
