@@ -140,6 +140,13 @@ class Hub:
             return self._since(self.flags.get(v), total, n), total
 
 
+def _moved(old: tuple[float, float], new: tuple[float, float], tol: float = 0.1) -> bool:
+    """True when a y range moved by more than ``tol`` of its span at either end (small changes
+    are not sent: each one costs the browser a redraw)."""
+    span = max(old[1] - old[0], 1e-12)
+    return abs(new[0] - old[0]) > tol * span or abs(new[1] - old[1]) > tol * span
+
+
 def _set_text(div: Any, text: str) -> None:
     if div.text != text:
         div.text = text
@@ -269,11 +276,21 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250,
             if rows and (state["tick"] % once_a_second == 0 or not state.get("ranged")):
                 state["ranged"] = True
                 for name, (lo, hi) in hub.y_ranges(v, state["shape"]).items():
-                    rng = state["ranges"][name]
-                    if (rng.start, rng.end) != (lo, hi):
-                        rng.start, rng.end = lo, hi
+                    rng, last = state["ranges"][name], state["auto"].get(name)
+                    if last is not None and (rng.start, rng.end) != last:
+                        continue  # the operator zoomed or panned: hold until the reset tool
+                    if last is None or _moved(last, (lo, hi)):  # reset: to the newest auto range
+                        rng.update(start=lo, end=hi, reset_start=lo, reset_end=hi)
+                        state["auto"][name] = (lo, hi)
 
         def pump() -> None:
+            doc.hold("combine")  # one patch message per tick: the browser renders once
+            try:
+                update()
+            finally:
+                doc.unhold()
+
+        def update() -> None:
             hub.poll()
             vs = store.vehicles()
             if vehicle and vehicle not in vs:
@@ -291,7 +308,7 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250,
                 tabs, src, fsrc, counters, ranges = build_plots(shape, hub.keep)
                 root.children[3] = tabs
                 state.update(shape=shape, src=src, fsrc=fsrc, counters=counters, ranges=ranges,
-                             n=0, nf=0, ranged=False)
+                             auto={}, n=0, nf=0, ranged=False)
             state["tick"] += 1
             if state["src"] is not None:
                 stream(v)

@@ -4,7 +4,8 @@ shape, all fed by one ``ColumnDataSource`` named ``tlm`` (columns of
 
 Residual plots do not autoscale on everything they hold: the convergence transient (thousands of
 arcsec) would flatten the converged residuals (arcsec). Their y ranges are set by the dashboard
-from :func:`robust_range` of the most recent rows instead (percentiles, padded).
+from :func:`robust_range` of the most recent rows instead (percentiles, padded); a zoom or pan
+by the operator holds a plot's range until the reset tool returns it to automatic.
 """
 
 from __future__ import annotations

@@ -162,6 +162,62 @@ def test_robust_range_clips_the_transient_and_current_values_table():
     assert "STALE DATA: no packet for 7 s" in stale_html(7.0, 5.0)
 
 
+def test_web_document_robust_axes_zoom_hold_and_stale_alarm():
+    """The page's server side without a browser: the document's periodic callback driven by hand,
+    the receiver clock faked. The cold-start transient (3000″ on the ST2 boresight) does not set
+    the boresight axis; an operator's zoom is held until reset; the stale alarm follows the
+    receiver clock."""
+    pytest.importorskip("bokeh")
+    from bokeh.document import Document
+
+    from monitors.web import Hub, make_document_factory
+
+    clk = Clock()
+    s = LatestStore(clock=clk)
+    doc = Document()
+    make_document_factory(Hub(s), "v", 250, stale_s=2.0)(doc)
+    (cb,) = list(doc.session_callbacks)
+    pump = cb.callback
+
+    def put(k: int, bs: float) -> None:
+        pkt = large_packet(seq=k, t=100.0 + k)
+        pkt["residuals"]["st2"] = {"innov": [1e-6, 1e-6, bs], "sigma": [2e-5, 2e-5, 1.9e-4],
+                                   "nis": 1.0, "nis_mean": 1.0}
+        s.put("v", "tlm/large", pkt)
+
+    for k in range(200):  # 3 transient packets, then converged ones
+        put(k, 0.0145 if k < 3 else 1e-5 * ((k % 5) - 2))
+        clk.now += 0.2
+        pump()
+    rng = doc.get_model_by_name("res_st2_bs").y_range
+    assert -200.0 < rng.start < -30.0 and 30.0 < rng.end < 200.0  # σ ≈ 39″, not ±3000″
+    src = doc.get_model_by_name("tlm")
+    assert len(src.data["t"]) == 200 and max(src.data["st2_z"]) > 2900.0  # data kept whole
+    assert doc.get_model_by_name("stale").text == ""
+    assert "117.00 ± 2.10" in doc.get_model_by_name("current").text
+
+    rng.start, rng.end = -5000.0, 5000.0  # the operator zooms out to see the transient
+    for k in range(200, 220):
+        put(k, 3e-4)  # new values that would move the automatic range
+        pump()
+    assert (rng.start, rng.end) == (-5000.0, 5000.0)  # held
+    rng.start, rng.end = rng.reset_start, rng.reset_end  # what the reset tool does
+    for _ in range(8):
+        pump()
+    assert (rng.start, rng.end) != (-5000.0, 5000.0) and rng.end < 200.0  # automatic again
+    moved = rng.end
+
+    clk.now += 3.0  # no packet for 3 s of the receiver clock > stale_s = 2
+    for _ in range(4):  # one second of ticks at 250 ms
+        pump()
+    assert "STALE DATA: no packet for 3 s" in doc.get_model_by_name("stale").text
+    put(300, 1e-5)
+    for _ in range(4):
+        pump()
+    assert doc.get_model_by_name("stale").text == ""  # cleared by the next packet
+    assert rng.end == pytest.approx(moved, rel=0.5)
+
+
 @pytest.mark.zenoh
 @pytest.mark.timeout(60)
 def test_zenoh_source_on_loopback():
