@@ -104,7 +104,7 @@ def euler_321_deg(q: list[float]) -> list[float]:
 def current_lines(msg: dict[str, Any] | None, flags: int | None = None) -> list[tuple[str, str]]:
     """(label [unit], value) of the current state from the newest tlm packet (large, medium or
     small): attitude quaternion and 3-2-1 Euler angles, body rate, tracker latency ± 1σ, SIRU
-    clock, mode, flags and per-gyro status. SI in, display units out (deg, deg/s, ms, ppm)."""
+    clock, mode, stream index (when the packet has one), flags and per-gyro status. SI in, display units out (deg, deg/s, ms, ppm)."""
     m = msg or {}
     out: list[tuple[str, str]] = []
     q = _vec(m.get("q_body_from_inertial"))
@@ -124,6 +124,8 @@ def current_lines(msg: dict[str, Any] | None, flags: int | None = None) -> list[
         state = f"{c.get('mode', '?')}, {'locked' if c.get('locked') else 'unlocked'}"
         out.append(("SIRU clock [ppm]", f"{state}, {_num(c.get('freq_offset_ppm')):+.3f} ppm"))
     out.append(("mode", str(m.get("mode", "?"))))
+    if isinstance(m.get("stream"), int):  # optional stream index (absent in older packets)
+        out.append(("stream", str(m["stream"])))
     f = flags if flags is not None else m.get("flags")
     out.append(("flags", flag_label(f if isinstance(f, int) else None)))
     if m.get("est") is not None or flags is not None:

@@ -157,6 +157,10 @@ def test_robust_range_clips_the_transient_and_current_values_table():
                  "B FAILED", "C excluded", "λ [ppm]", "-261.4 ± 3.40", "δa2 (ST2) [arcsec]",
                  "b [deg/hr]", "0.5026 ± 0.00220", "✗ FAILED", "✗ excluded"):
         assert want in page, want
+    assert "stream" not in page  # no stream field: no row
+    pkt["stream"] = 2
+    assert "<th style='text-align:left;padding-right:8px'>stream</th><td>2</td>" in current_html(
+        pkt, None)
     assert current_html(None, None).startswith("<i>no tlm")
     assert stale_html(None, 5.0) == "" and stale_html(4.9, 5.0) == ""
     assert "STALE DATA: no packet for 7 s" in stale_html(7.0, 5.0)
