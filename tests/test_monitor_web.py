@@ -177,9 +177,11 @@ def test_web_dashboard_live_in_chromium(tmp_path):
                 time.sleep(0.25)
             n1 = n_rows()
             assert n1 >= 3, f"no telemetry rows reached the page (rows={n1})"
-            time.sleep(2.0)
+            t0 = time.monotonic()  # new rows keep arriving (a condition polled, not a rate)
+            while n_rows() < n1 + 5 and time.monotonic() - t0 < 30:
+                time.sleep(0.25)
             n2 = n_rows()
-            assert n2 >= n1 + 5, f"plots did not update live: {n1} -> {n2} rows in 2 s"
+            assert n2 >= n1 + 5, f"plots did not update live: {n1} -> {n2} rows in 30 s"
             last_b = page.evaluate("""() => { const s = Bokeh.documents[0].get_model_by_name('tlm');
                 const b = s.data.b0; return b[b.length - 1]; }""")
             # deg/hr, paper units (SI would be ~2e-6 rad/s); the value depends on how far the
@@ -199,7 +201,7 @@ def test_web_dashboard_live_in_chromium(tmp_path):
             # rendered Div text to Playwright's text locators, so the wait reads the models)
             try:
                 page.wait_for_function("""() => Bokeh.documents[0].get_model_by_name('status')
-                    .text.includes('ST2_EDITED')""", timeout=10000)
+                    .text.includes('ST2_EDITED')""", timeout=30000)
             except Exception as e:  # diagnose instead of a bare timeout: page state + monitor log
                 st = page.evaluate("() => Bokeh.documents[0].get_model_by_name('status').text")
                 raise AssertionError(f"flag never shown ({e}); status: {st}; monitor log: "
@@ -240,7 +242,7 @@ def test_web_dashboard_live_in_chromium(tmp_path):
             assert not external, f"non-loopback requests: {external}"
             assert not errors, f"browser errors: {errors}"
             (ARTIFACTS / "monitor_web.json").write_text(json.dumps(
-                {"rows_first": n1, "rows_after_2s": n2, "flags": sorted(set(flag_names))}))
+                {"rows_first": n1, "rows_later": n2, "flags": sorted(set(flag_names))}))
             browser.close()
     finally:
         pub.close()
