@@ -270,6 +270,8 @@ def test_monitor_cli_rejects_bad_options(capsys):
                        (["tui", "--connect", "tcp/10.0.0.1:7448"], "not a loopback"),
                        (["web", "--port", "0"], "--port"),
                        (["web", "--period-ms", "1000"], "≥ 2 Hz"),
+                       (["web", "--stale-s", "0"], "--stale-s must be > 0"),
+                       (["tui", "--stale-s", "-1"], "--stale-s must be > 0"),
                        ([], "choose a dashboard")):
         assert cli_run(p.parse_args(argv)) == 2
         assert text in capsys.readouterr().err
