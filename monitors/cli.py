@@ -1,7 +1,7 @@
 """Live dashboards over Zenoh: ``radical monitor tui|web|foxglove``.
 
-    radical monitor tui [--vehicle V] [--listen EP | --connect EP] [--refresh S]
-    radical monitor web [--vehicle V] [--port P] [--listen EP | --connect EP]
+    radical monitor tui [--vehicle V] [--listen EP | --connect EP] [--refresh S] [--stale-s S]
+    radical monitor web [--vehicle V] [--port P] [--listen EP | --connect EP] [--stale-s S]
     radical monitor foxglove --vehicle V [--port P] [--listen EP | --connect EP]
 
 Both subscribe to ``radical/<V>/tlm/*``, ``fault``, ``diag`` (all vehicles when --vehicle is not
@@ -20,6 +20,7 @@ import argparse
 import sys
 
 from monitors.common import VEHICLE_RE
+from monitors.view import STALE_S
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -31,12 +32,19 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "(loopback endpoints and multicast off are still enforced)")
 
 
+def _stale(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--stale-s", type=float, default=STALE_S, metavar="S",
+                   help=f"stale-data alarm after S seconds without a packet of the vehicle "
+                        f"(receiver clock; default {STALE_S:g})")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="monitor", metavar="{tui,web,foxglove}")
     tui = sub.add_parser("tui", help="terminal dashboard (textual)")
     _common(tui)
     tui.add_argument("--refresh", type=float, default=0.5, metavar="S",
                      help="screen refresh period in seconds (default 0.5)")
+    _stale(tui)
     web = sub.add_parser("web", help="web dashboard (Bokeh server on 127.0.0.1)")
     _common(web)
     web.add_argument("--port", type=int, default=5006, help="HTTP port on 127.0.0.1 (default 5006)")
@@ -44,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="browser update period in ms (default 250 = 4 Hz)")
     web.add_argument("--keep", type=int, default=3600,
                      help="tlm/large packets kept per vehicle in the plots (default 3600)")
+    _stale(web)
     fox = sub.add_parser("foxglove", help="Foxglove WebSocket server on 127.0.0.1 (foxglove-sdk)")
     _common(fox)
     fox.add_argument("--port", type=int, default=8765,
@@ -71,13 +80,16 @@ def run(args: argparse.Namespace) -> int:
                 zconfig.check_endpoint(ep)
     except zconfig.ZenohConfigError as e:
         return _err(str(e))
+    if kind != "foxglove" and not args.stale_s > 0:
+        return _err("--stale-s must be > 0")
     if kind == "tui":
         try:
             from monitors.tui import run_tui
         except ImportError as e:
             return _err(f"the tui needs textual (pip install textual): {e}")
         try:
-            return run_tui(args.vehicle, args.listen, args.connect, args.zenoh_config, args.refresh)
+            return run_tui(args.vehicle, args.listen, args.connect, args.zenoh_config, args.refresh,
+                           args.stale_s)
         except Exception as e:  # zenoh session failures
             print(f"radical monitor tui: {type(e).__name__}: {e}", file=sys.stderr)
             return 1
@@ -102,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     try:
         return serve(store, args.vehicle, args.port, source=source, period_ms=args.period_ms,
-                     keep=args.keep)
+                     keep=args.keep, stale_s=args.stale_s)
     except OSError as e:
         source.close()
         print(f"radical monitor web: cannot serve on 127.0.0.1:{args.port}: {e}", file=sys.stderr)

@@ -5,7 +5,10 @@ The Zenoh subscriber callbacks do nothing but store the raw payload of the newes
 RingChannel(1) pattern: a slow UI never backs up Zenoh, it just sees fewer intermediate packets.
 The UI's refresh timer *pulls* (:meth:`LatestStore.latest`), which decodes the msgpack payload once
 per new message. Fault messages are events rather than states, so the store also keeps a short
-bounded history of them (the newest ``fault_keep`` per vehicle).
+bounded history of them (the newest ``fault_keep`` per vehicle). The plotted topics
+(``history_topics``, tlm/large by default) also keep every packet received, raw, in a bounded
+ring (``history_keep`` per vehicle): a history drawn from them has no gaps however slowly the UI
+polls (:meth:`LatestStore.since`).
 
 Any object that calls :meth:`LatestStore.put` is a data source: :class:`ZenohSource` (live
 traffic), or a test / an archive reader putting decoded dicts directly (in-memory source).
@@ -73,7 +76,8 @@ class LatestStore:
     """
 
     def __init__(self, clock: Callable[[], float] = time.monotonic, rate_window_s: float = 5.0,
-                 fault_keep: int = 100) -> None:
+                 fault_keep: int = 100, history_topics: tuple[str, ...] = ("tlm/large",),
+                 history_keep: int = 4096) -> None:
         self.clock = clock
         self.rate_window_s = rate_window_s
         self._lock = threading.Lock()
@@ -82,6 +86,8 @@ class LatestStore:
         self._faults: dict[str, deque[tuple[int, float, Any]]] = {}
         self._fault_n: dict[str, int] = {}
         self._fault_keep = fault_keep
+        self.history_topics, self.history_keep = history_topics, history_keep
+        self._hist: dict[tuple[str, str], deque[tuple[int, Any]]] = {}
         self.version = 0  # bumped on every put (cheap change detection)
 
     # -- writers (any thread) ------------------------------------------------------------------
@@ -96,6 +102,9 @@ class LatestStore:
             slot.data, slot.recv = payload, t
             slot.count += 1
             slot.times.append(t)
+            if topic in self.history_topics:
+                self._hist.setdefault((vehicle, topic), deque(maxlen=self.history_keep)).append(
+                    (slot.count, payload))
             if topic == "fault":
                 n = self._fault_n[vehicle] = self._fault_n.get(vehicle, 0) + 1
                 self._faults.setdefault(vehicle, deque(maxlen=self._fault_keep)).append(
@@ -146,6 +155,13 @@ class LatestStore:
             if m is not None:
                 out.append((n, t, m))
         return out
+
+    def since(self, vehicle: str, topic: str, after: int = 0) -> list[tuple[int, dict[str, Any]]]:
+        """Every packet of a history topic numbered > ``after`` still in the ring, oldest first:
+        (number = the topic's count when it arrived, decoded message); undecodable ones dropped."""
+        with self._lock:
+            items = [(n, p) for n, p in self._hist.get((vehicle, topic), ()) if n > after]
+        return [(n, m) for n, p in items if (m := decode(p)) is not None]
 
     def last_flags(self, vehicle: str) -> tuple[int | None, str | None]:
         """Flags of the most recently received of tlm/small, tlm/medium, tlm/large and fault,

@@ -4,7 +4,13 @@ Shows, for one vehicle, the parameter table (estimate ± 1σ in the paper's unit
 group as in Tables 2–7), the mode and the fault flags by name, per-topic packet counts, rates and
 ages (age = now − receive time of the newest packet, both on this host's monotonic clock: packet
 bus times and the receiver clock are different time lines), the SIRU clock state, attitude 1σ and
-residual statistics, counters and the latest fault messages.
+residual statistics, counters and the latest fault messages; the current values (attitude
+quaternion and Euler angles, body rate, tracker latency ± 1σ, clock, mode, flags, gyro status,
+shared with the web page: :func:`monitors.view.current_lines`); a stale-data alarm when no packet
+of the vehicle arrived for ``stale_s`` seconds.
+
+The parameter columns are at least :data:`monitors.view.CELL_WIDTH` wide from the start and widen
+on wider values, so a dashboard started before any data arrives lays out as one started after.
 
 The app only reads a :class:`~monitors.live.LatestStore` on a timer (``refresh_s``); who fills
 the store is injected: :class:`~monitors.live.ZenohSource` for live traffic, or anything that
@@ -25,14 +31,20 @@ from textual.widgets import DataTable, Footer, Header, Static
 from monitors.common import excitation_text, flag_label
 from monitors.live import TOPICS, LatestStore, pick_vehicle
 from monitors.view import (
+    CELL_WIDTH,
+    STALE_S,
     clock_lines,
     column_names,
     counter_lines,
+    current_lines,
     fault_line,
+    gyro_status,
     n_gyro,
     param_rows,
     residual_lines,
 )
+
+GYRO_ROW = "gyro status"
 
 BENIGN = {"NOT_CONVERGED"}
 
@@ -42,14 +54,15 @@ def _kv_table(title: str, rows: list[tuple[str, str]]) -> Table:
               expand=True)
     t.add_column(style="bold cyan", no_wrap=True)
     t.add_column()
-    for k, v in rows:
-        t.add_row(k, v)
+    for k, v in rows:  # Text: "[deg]" and the like are units, not rich markup
+        t.add_row(Text(k), Text(v))
     return t
 
 
 class MonitorApp(App):
     """The dashboard. ``store``: the data; ``vehicle``: shown vehicle (None: first seen);
-    ``source``: optional object with ``close()`` (closed on exit); ``refresh_s``: pull period."""
+    ``source``: optional object with ``close()`` (closed on exit); ``refresh_s``: pull period
+    [s]; ``stale_s``: seconds without any packet before the stale-data alarm."""
 
     TITLE = "RADICAL-RT monitor"
     CSS = """
@@ -57,16 +70,17 @@ class MonitorApp(App):
     #top { height: 1fr; }
     #left { width: 1fr; height: auto; }
     #right { width: 64; height: auto; }
-    #params { height: auto; max-height: 12; }
+    #params { height: auto; max-height: 14; }
     #packets { height: auto; max-height: 9; }
-    #clock, #residuals, #counters, #faults { padding: 0 1; height: auto; margin-top: 1; }
+    #clock, #current, #residuals, #counters, #faults { padding: 0 1; height: auto; margin-top: 1; }
     """
     BINDINGS = [("q", "quit", "Quit"), ("v", "next_vehicle", "Next vehicle")]
 
     def __init__(self, store: LatestStore, vehicle: str | None = None, source: Any = None,
-                 refresh_s: float = 0.5) -> None:
+                 refresh_s: float = 0.5, stale_s: float = STALE_S) -> None:
         super().__init__()
         self.store, self.wanted, self.source, self.refresh_s = store, vehicle, source, refresh_s
+        self.stale_s = stale_s
         self.vehicle: str | None = vehicle
         self._n_cols = 0
         self.refreshes = 0
@@ -77,6 +91,7 @@ class MonitorApp(App):
         with Horizontal(id="top"):
             with Vertical(id="left"):
                 yield DataTable(id="params", show_cursor=False, zebra_stripes=True)
+                yield Static(id="current")
                 yield Static(id="residuals")
                 yield Static(id="faults")
             with Vertical(id="right"):
@@ -107,10 +122,11 @@ class MonitorApp(App):
         t.clear(columns=True)
         t.add_column("parameter", key="group")
         t.add_column("unit", key="unit")
-        for i, name in enumerate(column_names(n)):
-            t.add_column(name, key=f"e{i}")
+        for i, name in enumerate(column_names(n)):  # the padded label sets the minimum width
+            t.add_column(Text(name.ljust(CELL_WIDTH)), key=f"e{i}")
         for label, unit, _cells in param_rows(None):
             t.add_row(label, unit, *(["—"] * n), key=label)
+        t.add_row(GYRO_ROW, "", *(["—"] * n), key=GYRO_ROW)
         self._n_cols = n
 
     def action_next_vehicle(self) -> None:
@@ -155,7 +171,10 @@ class MonitorApp(App):
         line.append(f"  t {t_bus:.2f} s" if isinstance(t_bus, int | float) else "  t ?")
         line.append(f"  seq {small.get('seq', '?')}")
         if newest is not None and newest.age_s is not None:
-            line.append(f"  last packet {newest.age_s:.2f} s ago", style="red" if newest.age_s > 5 else "")
+            stale = newest.age_s > self.stale_s
+            line.append(f"  last packet {newest.age_s:.2f} s ago", style="red" if stale else "")
+            if stale:
+                line.append(f"  STALE DATA (> {self.stale_s:g} s)", style="bold white on red")
         line.append("\nflags ")
         serious = [n for n in names.split(", ") if n not in BENIGN and n not in ("-", "?")]
         line.append(names, style="bold red" if serious else "green")
@@ -179,7 +198,12 @@ class MonitorApp(App):
             t = self.query_one("#params", DataTable)
             for label, _unit, cells in param_rows(large):
                 for i in range(n):
-                    t.update_cell(label, f"e{i}", cells[i] if i < len(cells) else "")
+                    t.update_cell(label, f"e{i}", cells[i] if i < len(cells) else "",
+                                  update_width=True)
+            for i, st in enumerate(gyro_status(large, flags)):
+                t.update_cell(GYRO_ROW, f"e{i}", Text(st, style="" if st == "ok" else "bold red"))
+        self.query_one("#current", Static).update(
+            _kv_table("current values", current_lines(large or small or None, flags)))
         self.query_one("#clock", Static).update(_kv_table("SIRU clock", clock_lines(large)))
         self.query_one("#residuals", Static).update(
             _kv_table("attitude and residuals", residual_lines(large)))
@@ -194,10 +218,11 @@ class MonitorApp(App):
 
 
 def run_tui(vehicle: str | None, listen: str | None, connect: str | None,
-            zenoh_config: str | None = None, refresh_s: float = 0.5) -> int:
+            zenoh_config: str | None = None, refresh_s: float = 0.5,
+            stale_s: float = STALE_S) -> int:
     from monitors.live import ZenohSource
 
     store = LatestStore()
     source = ZenohSource(store, vehicle, listen, connect, zenoh_config).start()
-    MonitorApp(store, vehicle, source=source, refresh_s=refresh_s).run()
+    MonitorApp(store, vehicle, source=source, refresh_s=refresh_s, stale_s=stale_s).run()
     return 0

@@ -18,6 +18,7 @@ from monitors.common import (
     group_paper,
     residual_kinds,
 )
+from radical_rt.flags import GYRO_FAILED
 
 
 def _num(v: Any) -> float:
@@ -65,6 +66,73 @@ def column_names(n: int) -> list[str]:
     axes = ["x", "y", "z"]
     return [f"{name[-1]}" + (f" / {axes[i]}" if i < 3 else "")
             for i, name in enumerate(element_names("b", n))]
+
+
+#: Width (characters) of one parameter cell: the widest "est ± σ" of any group for a 4-digit
+#: negative estimate and a 3-digit σ at the group's paper digits (λ ≈ -1004.6 ± 350.00 ppm in a
+#: cold start), so a table laid out before any data arrives does not truncate; wider values
+#: widen the column (the TUI updates cells with ``update_width``).
+CELL_WIDTH = max(len(fmt_est_sigma(g, -9999.0, 999.0)) for g in ORDER)
+
+#: Default seconds without any packet of the shown vehicle before the dashboards raise the
+#: stale-data alarm (receiver's monotonic clock).
+STALE_S = 5.0
+
+
+def gyro_status(msg: dict[str, Any] | None, flags: int | None = None) -> list[str]:
+    """Per gyro: ``"FAILED"`` (its GYRO_<X>_FAILED bit is set in ``flags``, else the packet's
+    flags), ``"excluded"`` (in the packet's optional ``excluded`` index list), else ``"ok"``."""
+    m = msg or {}
+    n = n_gyro(m)
+    f = flags if flags is not None else m.get("flags")
+    bits = int(f) if isinstance(f, int | float) else 0
+    ex = {int(i) for i in m.get("excluded") or [] if isinstance(i, int | float)}
+    return ["FAILED" if i < len(GYRO_FAILED) and bits & int(GYRO_FAILED[i])
+            else "excluded" if i in ex else "ok" for i in range(n)]
+
+
+def euler_321_deg(q: list[float]) -> list[float]:
+    """Yaw, pitch, roll [deg] (3-2-1 = scipy "ZYX") of a scalar-last ``q_body_from_inertial``;
+    [] when q is not 4 finite numbers with a nonzero norm."""
+    if len(q) != 4 or not all(math.isfinite(v) for v in q) or not any(q):
+        return []
+    from scipy.spatial.transform import Rotation
+
+    return [float(v) for v in Rotation.from_quat(q).as_euler("ZYX", degrees=True)]
+
+
+def current_lines(msg: dict[str, Any] | None, flags: int | None = None) -> list[tuple[str, str]]:
+    """(label [unit], value) of the current state from the newest tlm packet (large, medium or
+    small): attitude quaternion and 3-2-1 Euler angles, body rate, tracker latency ± 1σ, SIRU
+    clock, mode, stream index (when the packet has one), flags and per-gyro status. SI in, display units out (deg, deg/s, ms, ppm)."""
+    m = msg or {}
+    out: list[tuple[str, str]] = []
+    q = _vec(m.get("q_body_from_inertial"))
+    ypr = euler_321_deg(q)
+    if ypr:
+        out.append(("q body←inertial [x y z w]", " ".join(f"{v:+.6f}" for v in q)))
+        out.append(("Euler 3-2-1 yaw pitch roll [deg]", " ".join(f"{v:+.3f}" for v in ypr)))
+    w = _vec(m.get("omega_body"))
+    if len(w) == 3:
+        out.append(("rate ω body x y z [deg/s]", " ".join(f"{math.degrees(v):+.4f}" for v in w)))
+    lat = _map(m.get("latency"))
+    if "estimate_s" in lat:
+        out.append(("tracker latency ± 1σ [ms]", f"{_num(lat['estimate_s']) * 1e3:.2f} ± "
+                                                 f"{_num(lat.get('sigma_s')) * 1e3:.2f}"))
+    c = _map(m.get("clock"))
+    if c:
+        state = f"{c.get('mode', '?')}, {'locked' if c.get('locked') else 'unlocked'}"
+        out.append(("SIRU clock [ppm]", f"{state}, {_num(c.get('freq_offset_ppm')):+.3f} ppm"))
+    out.append(("mode", str(m.get("mode", "?"))))
+    if isinstance(m.get("stream"), int):  # optional stream index (absent in older packets)
+        out.append(("stream", str(m["stream"])))
+    f = flags if flags is not None else m.get("flags")
+    out.append(("flags", flag_label(f if isinstance(f, int) else None)))
+    if m.get("est") is not None or flags is not None:
+        names = [n[-1] for n in element_names("b", n_gyro(m))]
+        out.append(("gyros", "  ".join(f"{a} {s}" for a, s in zip(names, gyro_status(m, f),
+                                                                    strict=False))))
+    return out
 
 
 def clock_lines(msg: dict[str, Any] | None) -> list[tuple[str, str]]:
@@ -129,7 +197,8 @@ def tlm_shape(msg: dict[str, Any]) -> dict[str, int]:
 
 def tlm_columns(shape: dict[str, int]) -> list[str]:
     n, p = shape["n"], shape["parity"]
-    cols = ["t", "att_x", "att_y", "att_z", "clk_ppm", "clk_tag_ms", "clk_offset_ms"]
+    cols = ["t", "att_x", "att_y", "att_z", "clk_ppm", "clk_tag_ms", "clk_offset_ms",
+            "yaw", "pitch", "roll", "w_x", "w_y", "w_z", "lat_ms", "lat_hi", "lat_lo"]
     for i in range(p):
         cols += [f"par{i}", f"par{i}_s", f"par{i}_sn"]
     for k in ("st1", "st2"):
@@ -142,12 +211,21 @@ def tlm_columns(shape: dict[str, int]) -> list[str]:
 
 
 def tlm_row(msg: dict[str, Any], shape: dict[str, int]) -> dict[str, float]:
-    """One row of the web plots' source from a tlm/large packet (paper units; NaN if absent).
-    σ ≤ 0 becomes NaN (log axes)."""
+    """One row of the web plots' source from a tlm/large packet (paper units; NaN if absent):
+    attitude 1σ and residuals arcsec, Euler angles deg, rates deg/s, latency (± 1σ) ms, clock
+    ppm and ms, parameters in the paper's units. σ ≤ 0 becomes NaN (log axes)."""
     row = dict.fromkeys(tlm_columns(shape), math.nan)
     row["t"] = _num(msg.get("t"))
     for a, v in zip("xyz", _vec(msg.get("att_sigma")), strict=False):
         row[f"att_{a}"] = v / ARCSEC if v > 0 else math.nan
+    for k, v in zip(("yaw", "pitch", "roll"), euler_321_deg(_vec(msg.get("q_body_from_inertial"))),
+                    strict=False):
+        row[k] = v
+    for a, v in zip("xyz", _vec(msg.get("omega_body")), strict=False):
+        row[f"w_{a}"] = math.degrees(v)
+    lat = _map(msg.get("latency"))
+    est_ms, sig_ms = _num(lat.get("estimate_s")) * 1e3, _num(lat.get("sigma_s")) * 1e3
+    row["lat_ms"], row["lat_hi"], row["lat_lo"] = est_ms, est_ms + sig_ms, est_ms - sig_ms
     c = _map(msg.get("clock"))
     row["clk_ppm"] = _num(c.get("freq_offset_ppm"))
     row["clk_tag_ms"] = _num(c.get("tag_error_sigma_s")) * 1e3

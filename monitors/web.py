@@ -1,19 +1,21 @@
 """Live web dashboard (Bokeh server): ``radical monitor web [--vehicle V] [--port P]
-[--listen EP | --connect EP]``.
+[--listen EP | --connect EP] [--stale-s S]``.
 
 One Bokeh server process, bound to 127.0.0.1 only (the Bokeh JS is served by the server itself:
-no external resources). Zenoh callbacks only store the newest message per (vehicle, topic) in a
-:class:`~monitors.live.LatestStore`. Each browser session runs a periodic callback (4 Hz) on the
-Bokeh IOLoop that pulls the store through a shared :class:`Hub` — which turns each new tlm/large
-packet into one row of paper-unit columns and keeps a bounded history per vehicle — and sends only
-the new rows with ``ColumnDataSource.stream(..., rollover)``.
+no external resources). Zenoh callbacks only store messages in a
+:class:`~monitors.live.LatestStore` (the newest per (vehicle, topic), and every tlm/large packet
+in a bounded ring). Each browser session runs a periodic callback (4 Hz) on the Bokeh IOLoop that
+pulls the store through a shared :class:`Hub` — which turns *every* tlm/large packet received
+into one row of display-unit columns and keeps a bounded history per vehicle — and sends only the
+new rows with ``ColumnDataSource.stream(..., rollover)``.
 
 Page: vehicle selector (vehicles from ``radical/*/alive/filter`` liveliness tokens and from
-traffic), status (mode, flags by name, bus time, per-topic counts/rates/ages on the receiver's
-monotonic clock), latest fault messages; tab "attitude & residuals" (attitude 1σ; parity residual
-±1σ; ST1 and ST2 residuals ±1σ; fault flag timeline by name); one tab per parameter group
-(estimates and 1σ over time); tab "clock & counters" (SIRU clock frequency offset, offset and
-tag error 1σ; counters).
+traffic), stale-data alarm (no packet of the vehicle for ``stale_s`` s of the receiver's
+monotonic clock), status (mode, flags by name, bus time, per-topic counts/rates/ages), SIRU
+clock, latest fault messages, a table of current values (attitude, rates, latency ± 1σ, clock,
+mode, flags, gyro status; parameter estimates ± 1σ per gyro in the paper's units); the figures
+of :mod:`monitors.web_figs` (attitude 1σ, residuals with boresight apart on robust axes, flag
+timeline; Euler angles, rates, latency; parameters; clock and counters).
 """
 
 from __future__ import annotations
@@ -28,20 +30,22 @@ from typing import Any
 
 import numpy as np
 
-from monitors.common import (
-    FLAG_BITS,
-    GROUP_LABELS,
-    ORDER,
-    PAPER_UNITS,
-    element_names,
-    excitation_text,
-    flag_label,
-)
+from monitors.common import FLAG_BITS, excitation_text, flag_label
 from monitors.live import TOPICS, LatestStore, pick_vehicle
-from monitors.view import clock_lines, counter_lines, fault_line, tlm_columns, tlm_row, tlm_shape
+from monitors.view import (
+    STALE_S,
+    clock_lines,
+    column_names,
+    counter_lines,
+    current_lines,
+    fault_line,
+    gyro_status,
+    param_rows,
+    tlm_row,
+    tlm_shape,
+)
+from monitors.web_figs import RANGE_ROWS, build_plots, residual_columns, robust_range
 
-FLAG_NAMES = [name for _b, name in FLAG_BITS] + ["OTHER"]
-COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
 BENIGN = {"NOT_CONVERGED"}
 
 
@@ -80,20 +84,20 @@ class Hub:
         self._seen_fault: dict[str, int] = {}
 
     def poll(self) -> None:
+        """Turn every tlm/large packet and fault message received since the last poll into rows."""
         with self._lock:
             for v in self.store.vehicles():
-                s = self.store.latest(v, "tlm/large")
-                if s.msg is not None and s.count != self._seen.get(v):
-                    self._seen[v] = s.count
-                    shape = tlm_shape(s.msg)
+                for n, msg in self.store.since(v, "tlm/large", self._seen.get(v, 0)):
+                    self._seen[v] = n
+                    shape = tlm_shape(msg)
                     if shape != self.shape.get(v):  # new vehicle or new geometry: restart
                         self.shape[v] = shape
                         self.rows[v] = deque(maxlen=self.keep)
                         self.total[v] = 0
-                    self.rows[v].append(tlm_row(s.msg, shape))
+                    self.rows[v].append(tlm_row(msg, shape))
                     self.total[v] += 1
-                    t = float(s.msg.get("t", math.nan))
-                    self._add_flags(v, _flag_rows(t, s.msg.get("flags", 0), "tlm"))
+                    t = float(msg.get("t", math.nan))
+                    self._add_flags(v, _flag_rows(t, msg.get("flags", 0), "tlm"))
                 faults = self.store.faults(v, after=self._seen_fault.get(v, 0))
                 for n, _recv, m in faults:
                     self._seen_fault[v] = n
@@ -117,138 +121,30 @@ class Hub:
             total = self.total.get(v, 0)
             return self._since(self.rows.get(v), total, n), total
 
+    def y_ranges(self, v: str, shape: dict[str, int]) -> dict[str, tuple[float, float]]:
+        """Residual figure name → :func:`~monitors.web_figs.robust_range` of its columns over
+        the newest RANGE_ROWS rows (arcsec); figures with no finite data are left out."""
+        with self._lock:
+            d = self.rows.get(v)
+            rows = list(d)[-RANGE_ROWS:] if d else []
+        out = {}
+        for name, cols in residual_columns(shape).items():
+            r = robust_range(np.array([[row.get(c, math.nan) for c in cols] for row in rows]))
+            if r is not None:
+                out[name] = r
+        return out
+
     def flags_since(self, v: str, n: int) -> tuple[list[tuple[float, str, str]], int]:
         with self._lock:
             total = self.flag_total.get(v, 0)
             return self._since(self.flags.get(v), total, n), total
 
 
-# ------------------------------------------------------------------------------------ document
-def _fig(title: str, y_label: str, log: bool = False, height: int = 240, x_range: Any = None,
-         y_range: Any = None):
-    from bokeh.plotting import figure
-
-    kw: dict[str, Any] = {"x_range": x_range} if x_range is not None else {}
-    if y_range is not None:
-        kw["y_range"] = y_range
-    f = figure(title=title, height=height, sizing_mode="stretch_width", output_backend="canvas",
-               tools="pan,wheel_zoom,box_zoom,reset,save", y_axis_type="log" if log else "auto",
-               x_axis_label="bus time [s]", y_axis_label=y_label, **kw)
-    f.title.text_font_size = "11px"  # type: ignore[union-attr]
-    return f
-
-
-def _legend(f: Any) -> None:
-    if f.legend:
-        f.legend.click_policy = "hide"
-        f.legend.label_text_font_size = "9px"
-        f.legend.location = "top_right"
-        f.legend.background_fill_alpha = 0.6
-        f.legend.spacing = 0
-        f.legend.padding = 2
-
-
-def build_plots(shape: dict[str, int], keep: int) -> tuple[Any, Any, Any, Any]:
-    """The tabs for one vehicle's packet shape; returns (tabs, tlm source, flags source,
-    counters div)."""
-    from bokeh.layouts import column, gridplot, row
-    from bokeh.models import ColumnDataSource, Div, FactorRange, TabPanel, Tabs  # type: ignore[attr-defined]
-
-    src = ColumnDataSource({c: np.zeros(0) for c in tlm_columns(shape)}, name="tlm")
-    fsrc = ColumnDataSource({"t": np.zeros(0), "flag": [], "src": [], "color": []},
-                            name="flags")
-    figs = []
-    att = _fig("attitude 1σ", "arcsec", log=True)
-    for i, a in enumerate("xyz"):
-        att.line("t", f"att_{a}", source=src, color=COLORS[i], legend_label=a, line_width=1.5)
-    x = att.x_range
-    figs.append(att)
-    par = _fig("parity (null-space) residual ±1σ", "arcsec", x_range=x)
-    for i in range(shape["parity"]):
-        c = COLORS[i]
-        par.scatter("t", f"par{i}", source=src, color=c, size=3, legend_label=f"p{i + 1}")
-        par.line("t", f"par{i}_s", source=src, color=c, line_width=1)
-        par.line("t", f"par{i}_sn", source=src, color=c, line_width=1)
-    figs.append(par)
-    for k in ("st1", "st2"):
-        f = _fig(f"{k.upper()} residuals ±1σ", "arcsec", x_range=x)
-        for i, a in enumerate("xyz"):
-            c = COLORS[i]
-            f.scatter("t", f"{k}_{a}", source=src, color=c, size=3, legend_label=a)
-            f.line("t", f"{k}_{a}_s", source=src, color=c, line_width=1, legend_label=a)
-            f.line("t", f"{k}_{a}_sn", source=src, color=c, line_width=1, legend_label=a)
-        figs.append(f)
-    for f in figs:
-        _legend(f)
-    flags_fig = _fig("fault flags (tlm/large: circles, grey if benign; fault messages: black "
-                     "squares)", "", height=300,
-                     x_range=x, y_range=FactorRange(factors=list(reversed(FLAG_NAMES))))
-    from bokeh.transform import factor_mark
-
-    flags_fig.scatter("t", "flag", source=fsrc, size=7,
-                      marker=factor_mark("src", ["circle", "square"], ["tlm", "fault"]),
-                      color="color")
-    tab1 = TabPanel(title="attitude & residuals", child=column(
-        gridplot([[figs[0], figs[1]], [figs[2], figs[3]]], sizing_mode="stretch_width",
-                 toolbar_location="right"), flags_fig, sizing_mode="stretch_width"))
-    tabs = [tab1, TabPanel(title="parameters", child=_param_panel(src, shape, x))]
-    fc = _fig("SIRU clock frequency offset", "ppm", x_range=x)
-    fc.line("t", "clk_ppm", source=src, line_width=1.5, legend_label="freq offset")
-    ft = _fig("SIRU clock offset and time-tag error 1σ", "ms", x_range=x)
-    ft.line("t", "clk_tag_ms", source=src, line_width=1.5, color=COLORS[1],
-            legend_label="tag error 1σ")
-    ft.line("t", "clk_offset_ms", source=src, line_width=1.5, color=COLORS[2],
-            legend_label="offset")
-    _legend(fc)
-    _legend(ft)
-    counters = Div(text="", name="counters", sizing_mode="stretch_width")
-    tabs.append(TabPanel(title="clock & counters", child=column(
-        row(fc, ft, sizing_mode="stretch_width"), counters, sizing_mode="stretch_width")))
-    return Tabs(tabs=tabs, sizing_mode="stretch_width", name="tabs"), src, fsrc, counters
-
-
-def _param_panel(src: Any, shape: dict[str, int], x_range: Any) -> Any:
-    """Estimates and 1σ over time of one parameter group at a time, chosen with buttons: two
-    figures whose lines are re-pointed at the group's columns (cheaper for the browser than
-    twelve figures all streaming)."""
-    from bokeh.core.property.vectorization import value
-    from bokeh.layouts import column, row
-    from bokeh.models import RadioButtonGroup  # type: ignore[attr-defined]
-
-    width = max(shape["n"], 3)
-    fe = _fig("estimates", "", height=340, x_range=x_range)
-    fs = _fig("1σ", "", log=True, height=340, x_range=x_range)
-    fe.name, fs.name = "param_est", "param_sigma"
-    est_r = [fe.line("t", f"b{i}", source=src, color=COLORS[i % 8], line_width=1.5,
-                     legend_label=f"e{i}") for i in range(width)]
-    sig_r = [fs.line("t", f"b{i}_s", source=src, color=COLORS[i % 8], line_width=1.5,
-                     legend_label=f"e{i}") for i in range(width)]
-    _legend(fe)
-    _legend(fs)
-    buttons = RadioButtonGroup(labels=[f"{GROUP_LABELS[g]} [{PAPER_UNITS[g]}]" for g in ORDER],
-                               active=ORDER.index("b"), name="group")
-
-    def show(g: str) -> None:
-        n = 3 if g == "phi2" else shape["n"]
-        names = element_names(g, n)
-        for f, rs, suffix in ((fe, est_r, ""), (fs, sig_r, "_s")):
-            for i, r in enumerate(rs):
-                vis = i < n
-                r.visible = vis
-                if vis:
-                    r.glyph.y = f"{g}{i}{suffix}"
-            for i, item in enumerate(f.legend.items):
-                item.visible = i < n
-                if i < n:
-                    item.label = value(names[i])
-        unit = PAPER_UNITS[g]
-        fe.title.text = f"{GROUP_LABELS[g]} estimates [{unit}]"
-        fs.title.text = f"{GROUP_LABELS[g]} 1σ [{unit}]"
-        fe.yaxis.axis_label = fs.yaxis.axis_label = unit
-
-    buttons.on_change("active", lambda _a, _o, new: show(ORDER[new]))
-    show("b")
-    return column(buttons, row(fe, fs, sizing_mode="stretch_width"), sizing_mode="stretch_width")
+def _moved(old: tuple[float, float], new: tuple[float, float], tol: float = 0.1) -> bool:
+    """True when a y range moved by more than ``tol`` of its span at either end (small changes
+    are not sent: each one costs the browser a redraw)."""
+    span = max(old[1] - old[0], 1e-12)
+    return abs(new[0] - old[0]) > tol * span or abs(new[1] - old[1]) > tol * span
 
 
 def _set_text(div: Any, text: str) -> None:
@@ -260,6 +156,44 @@ def _kv_html(rows: list[tuple[str, str]]) -> str:
     return "<table style='font-size:12px'>" + "".join(
         f"<tr><th style='text-align:left;padding-right:8px'>{html.escape(k)}</th>"
         f"<td>{html.escape(v)}</td></tr>" for k, v in rows) + "</table>"
+
+
+def current_html(msg: dict[str, Any] | None, flags: int | None) -> str:
+    """The current-values table: :func:`~monitors.view.current_lines` (attitude, rates, latency,
+    clock, mode, flags, gyros) and the parameter estimates ± 1σ per gyro in the paper's units
+    (units in the row headers), failed/excluded gyros marked in the column headers and cells."""
+    if msg is None:
+        return "<i>no tlm packet received yet</i>"
+    state = gyro_status(msg, flags)
+    bad = {i for i, st in enumerate(state) if st != "ok"}
+    td = "<td style='padding:0 6px;font-family:monospace'>"
+    cells = [f"<th style='padding:0 6px'>{html.escape(c)}"
+             + (f" <span style='color:#c00'>✗ {state[i]}</span>" if i in bad else "") + "</th>"
+             for i, c in enumerate(column_names(len(state)))]
+    rows = "".join(
+        f"<tr><th style='text-align:left'>{html.escape(label)} [{html.escape(unit)}]</th>"
+        + "".join(f"{td}<span style='color:{'#c00' if i in bad else 'inherit'}'>"
+                  f"{html.escape(c)}</span></td>" for i, c in enumerate(vals)) + "</tr>"
+        for label, unit, vals in param_rows(msg))
+    return ("<div style='display:flex;gap:24px'><div><b>current values</b>"
+            + _kv_html(current_lines(msg, flags)) + "</div><div><b>parameters (estimate ± 1σ)"
+            "</b><table id='params' style='font-size:12px'><tr><th></th>" + "".join(cells)
+            + "</tr>" + rows + "</table></div></div>")
+
+
+def stale_html(age_s: float | None, stale_s: float) -> str:
+    """The stale-data alarm: red banner when the newest packet of the vehicle is older than
+    ``stale_s`` s (receiver clock), empty while data flows or before any packet."""
+    if age_s is None or age_s <= stale_s:
+        return ""
+    return (f"<div style='background:#c00;color:white;font-weight:bold;padding:4px 8px'>"
+            f"STALE DATA: no packet for {age_s:.0f} s (alarm after {stale_s:g} s)</div>")
+
+
+def newest_age(store: LatestStore, v: str) -> float | None:
+    """Seconds since the newest packet of any topic of the vehicle (receiver clock), or None."""
+    ages = [s.age_s for s in (store.latest(v, t) for t in TOPICS) if s.age_s is not None]
+    return min(ages) if ages else None
 
 
 def status_html(store: LatestStore, v: str) -> str:
@@ -292,8 +226,10 @@ def status_html(store: LatestStore, v: str) -> str:
             "<th>rate Hz</th><th>age s (receiver clock)</th></tr>" + rows + "</table>")
 
 
-def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250):
-    """The Bokeh app function: one call per browser session."""
+def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250,
+                          stale_s: float = STALE_S):
+    """The Bokeh app function: one call per browser session. ``stale_s``: seconds without a
+    packet before the stale-data alarm shows."""
 
     def make_doc(doc: Any) -> None:
         from bokeh.layouts import column, row
@@ -301,17 +237,21 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250):
 
         store = hub.store
         state: dict[str, Any] = {"vehicle": pick_vehicle(store, vehicle), "n": 0, "nf": 0,
-                                 "shape": None, "src": None, "fsrc": None, "counters": None}
+                                 "shape": None, "src": None, "fsrc": None, "counters": None,
+                                 "ranges": {}, "tick": 0}
         select = Select(title="vehicle", options=store.vehicles() or ([vehicle] if vehicle else []),
                         value=state["vehicle"] or "", width=160, name="vehicle")
+        stale = Div(text="", name="stale", sizing_mode="stretch_width", height=28)
         status = Div(text="waiting for telemetry…", name="status", width=560, height=170)
         faults = Div(text="", name="faults", sizing_mode="stretch_width", height=170)
         clock = Div(text="", name="clock", width=380, height=170)
+        current = Div(text="", name="current", sizing_mode="stretch_width", height=190)
         body = Div(text="<i>no tlm/large received yet</i>", sizing_mode="stretch_width")
-        root = column(row(select, status, clock, faults, sizing_mode="stretch_width"), body,
-                      sizing_mode="stretch_width")
+        root = column(stale, row(select, status, clock, faults, sizing_mode="stretch_width"),
+                      current, body, sizing_mode="stretch_width")
         doc.add_root(root)
         doc.title = "RADICAL-RT monitor"
+        once_a_second = max(1, 1000 // period_ms)
 
         def switch(_attr: str, _old: str, new: str) -> None:
             if new and new != state["vehicle"]:
@@ -319,7 +259,38 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250):
 
         select.on_change("value", switch)
 
+        def stream(v: str) -> None:
+            rows, total = hub.rows_since(v, state["n"])
+            if rows:
+                cols = {c: np.array([r[c] for r in rows], dtype=float) for c in rows[0]}
+                state["src"].stream(cols, rollover=hub.keep)
+                state["n"] = total
+            frows, ftotal = hub.flags_since(v, state["nf"])
+            if frows:
+                state["fsrc"].stream({"t": np.array([r[0] for r in frows], dtype=float),
+                                      "flag": [r[1] for r in frows],
+                                      "src": [r[2] for r in frows],
+                                      "color": [_flag_color(r) for r in frows]},
+                                     rollover=hub.keep * 4)
+                state["nf"] = ftotal
+            if rows and (state["tick"] % once_a_second == 0 or not state.get("ranged")):
+                state["ranged"] = True
+                for name, (lo, hi) in hub.y_ranges(v, state["shape"]).items():
+                    rng, last = state["ranges"][name], state["auto"].get(name)
+                    if last is not None and (rng.start, rng.end) != last:
+                        continue  # the operator zoomed or panned: hold until the reset tool
+                    if last is None or _moved(last, (lo, hi)):  # reset: to the newest auto range
+                        rng.update(start=lo, end=hi, reset_start=lo, reset_end=hi)
+                        state["auto"][name] = (lo, hi)
+
         def pump() -> None:
+            doc.hold("combine")  # one patch message per tick: the browser renders once
+            try:
+                update()
+            finally:
+                doc.unhold()
+
+        def update() -> None:
             hub.poll()
             vs = store.vehicles()
             if vehicle and vehicle not in vs:
@@ -334,31 +305,25 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250):
                 return
             shape = hub.shape.get(v)
             if shape is not None and shape != state["shape"]:
-                tabs, src, fsrc, counters = build_plots(shape, hub.keep)
-                root.children[1] = tabs
-                state.update(shape=shape, src=src, fsrc=fsrc, counters=counters, n=0, nf=0)
+                tabs, src, fsrc, counters, ranges = build_plots(shape, hub.keep)
+                root.children[3] = tabs
+                state.update(shape=shape, src=src, fsrc=fsrc, counters=counters, ranges=ranges,
+                             auto={}, n=0, nf=0, ranged=False)
+            state["tick"] += 1
             if state["src"] is not None:
-                rows, total = hub.rows_since(v, state["n"])
-                if rows:
-                    cols = {c: np.array([r[c] for r in rows], dtype=float) for c in rows[0]}
-                    state["src"].stream(cols, rollover=hub.keep)
-                    state["n"] = total
-                frows, ftotal = hub.flags_since(v, state["nf"])
-                if frows:
-                    state["fsrc"].stream({"t": np.array([r[0] for r in frows], dtype=float),
-                                          "flag": [r[1] for r in frows],
-                                          "src": [r[2] for r in frows],
-                                          "color": [_flag_color(r) for r in frows]},
-                                         rollover=hub.keep * 4)
-                    state["nf"] = ftotal
-            # text panels: only when changed, the status (ages tick) at most ~1 Hz, but a
-            # flags change at once; each Div change costs the browser a re-layout
-            state["tick"] = state.get("tick", 0) + 1
+                stream(v)
+            # text panels: only when changed and at most ~1 Hz (ages tick, values move), but a
+            # flags change at once; each Div change costs the browser a re-layout (fixed heights
+            # keep it local)
             flags = store.last_flags(v)[0]
-            if flags != state.get("flags") or state["tick"] % max(1, 1000 // period_ms) == 0:
-                state["flags"] = flags
-                _set_text(status, status_html(store, v))
+            if flags == state.get("flags") and state["tick"] % once_a_second != 0:
+                return
+            state["flags"] = flags
+            _set_text(status, status_html(store, v))
+            _set_text(stale, stale_html(newest_age(store, v), stale_s))
             large = store.latest(v, "tlm/large").msg
+            newest = large or store.latest(v, "tlm/medium").msg or store.latest(v, "tlm/small").msg
+            _set_text(current, current_html(newest, flags))
             _set_text(clock, "<b>SIRU clock</b>" + _kv_html(clock_lines(large)))
             fl = store.faults(v)[-6:]
             _set_text(faults, "<b>fault messages</b> (newest last)<br><span style='font-size:11px'>"
@@ -374,14 +339,15 @@ def make_document_factory(hub: Hub, vehicle: str | None, period_ms: int = 250):
 
 
 def serve(store: LatestStore, vehicle: str | None, port: int, source: Any = None,
-          period_ms: int = 250, keep: int = 3600) -> int:
-    """Run the Bokeh server on 127.0.0.1:port until SIGINT/SIGTERM."""
+          period_ms: int = 250, keep: int = 3600, stale_s: float = STALE_S) -> int:
+    """Run the Bokeh server on 127.0.0.1:port until SIGINT/SIGTERM. ``keep``: rows of history
+    per vehicle; ``stale_s``: seconds without a packet before the stale-data alarm."""
     from bokeh.application import Application
     from bokeh.application.handlers.function import FunctionHandler
     from bokeh.server.server import Server
 
     hub = Hub(store, keep=keep)
-    app = Application(FunctionHandler(make_document_factory(hub, vehicle, period_ms)))
+    app = Application(FunctionHandler(make_document_factory(hub, vehicle, period_ms, stale_s)))
     origins = [f"127.0.0.1:{port}", f"localhost:{port}"]
     server = Server({"/": app}, port=port, address="127.0.0.1", allow_websocket_origin=origins)
     server.start()

@@ -108,6 +108,120 @@ def test_hub_rows_rollover_and_flags():
     assert all(f[2] == "fault" for f in fl)
 
 
+def test_hub_keeps_every_packet_between_polls():
+    """Issue #21: the history kept only the newest packet per poll. 50 packets arriving between
+    two polls (a loaded UI) all become rows, in order; the store's ring bounds the backlog."""
+    pytest.importorskip("bokeh")
+    from monitors.web import Hub
+
+    s = LatestStore(clock=Clock(), history_keep=40)
+    hub = Hub(s, keep=1000)
+    for k in range(10):
+        s.put("v", "tlm/large", msgpack.packb(large_packet(seq=k, t=100.0 + k)))
+    hub.poll()
+    for k in range(10, 60):  # 50 more before the next poll
+        s.put("v", "tlm/large", msgpack.packb(large_packet(seq=k, t=100.0 + k)))
+    hub.poll()
+    rows, total = hub.rows_since("v", 0)
+    # all 10 of the first poll, then the 40 of the next 50 still in the store's ring of 40
+    assert total == 50 and [r["t"] for r in rows] == [100.0 + k for k in [*range(10),
+                                                                          *range(20, 60)]]
+    assert [n for n, _m in s.since("v", "tlm/large", 59)] == [60]  # numbered 1.. on arrival
+    hub.poll()
+    assert hub.rows_since("v", 50) == ([], 50)  # nothing new, nothing repeated
+
+
+def test_robust_range_clips_the_transient_and_current_values_table():
+    pytest.importorskip("bokeh")
+    import numpy as np
+
+    from monitors.web import current_html, stale_html
+    from monitors.web_figs import robust_range
+
+    rng = np.random.default_rng(1)
+    converged = rng.normal(0.0, 2.0, 290)  # arcsec
+    transient = np.linspace(-3000.0, 3000.0, 10)  # the first packets of a cold start
+    lo, hi = robust_range(np.concatenate([transient, converged]))
+    assert -15.0 < lo < -3.0 and 3.0 < hi < 15.0  # the converged residuals fill the plot
+    assert robust_range(np.array([math.nan, math.nan])) is None
+    lo, hi = robust_range(np.full(5, 7.0))
+    assert lo < 7.0 < hi  # a flat line still gets a span
+
+    pkt = large_packet(flags=int(Flag.GYRO_B_FAILED))
+    pkt["latency"] = {"estimate_s": 0.117, "sigma_s": 0.0021}
+    pkt["excluded"] = [2]
+    page = current_html(pkt, int(Flag.GYRO_B_FAILED))
+    for want in ("q body←inertial [x y z w]", "+0.000000 +0.000000 +0.000000 +1.000000",
+                 "Euler 3-2-1 yaw pitch roll [deg]", "rate ω body x y z [deg/s]",
+                 "117.00 ± 2.10", "reconstruct, locked, +40.010 ppm", "GYRO_B_FAILED",
+                 "B FAILED", "C excluded", "λ [ppm]", "-261.4 ± 3.40", "δa2 (ST2) [arcsec]",
+                 "b [deg/hr]", "0.5026 ± 0.00220", "✗ FAILED", "✗ excluded"):
+        assert want in page, want
+    assert "stream" not in page  # no stream field: no row
+    pkt["stream"] = 2
+    assert "<th style='text-align:left;padding-right:8px'>stream</th><td>2</td>" in current_html(
+        pkt, None)
+    assert current_html(None, None).startswith("<i>no tlm")
+    assert stale_html(None, 5.0) == "" and stale_html(4.9, 5.0) == ""
+    assert "STALE DATA: no packet for 7 s" in stale_html(7.0, 5.0)
+
+
+def test_web_document_robust_axes_zoom_hold_and_stale_alarm():
+    """The page's server side without a browser: the document's periodic callback driven by hand,
+    the receiver clock faked. The cold-start transient (3000″ on the ST2 boresight) does not set
+    the boresight axis; an operator's zoom is held until reset; the stale alarm follows the
+    receiver clock."""
+    pytest.importorskip("bokeh")
+    from bokeh.document import Document
+
+    from monitors.web import Hub, make_document_factory
+
+    clk = Clock()
+    s = LatestStore(clock=clk)
+    doc = Document()
+    make_document_factory(Hub(s), "v", 250, stale_s=2.0)(doc)
+    (cb,) = list(doc.session_callbacks)
+    pump = cb.callback
+
+    def put(k: int, bs: float) -> None:
+        pkt = large_packet(seq=k, t=100.0 + k)
+        pkt["residuals"]["st2"] = {"innov": [1e-6, 1e-6, bs], "sigma": [2e-5, 2e-5, 1.9e-4],
+                                   "nis": 1.0, "nis_mean": 1.0}
+        s.put("v", "tlm/large", pkt)
+
+    for k in range(200):  # 3 transient packets, then converged ones
+        put(k, 0.0145 if k < 3 else 1e-5 * ((k % 5) - 2))
+        clk.now += 0.2
+        pump()
+    rng = doc.get_model_by_name("res_st2_bs").y_range
+    assert -200.0 < rng.start < -30.0 and 30.0 < rng.end < 200.0  # σ ≈ 39″, not ±3000″
+    src = doc.get_model_by_name("tlm")
+    assert len(src.data["t"]) == 200 and max(src.data["st2_z"]) > 2900.0  # data kept whole
+    assert doc.get_model_by_name("stale").text == ""
+    assert "117.00 ± 2.10" in doc.get_model_by_name("current").text
+
+    rng.start, rng.end = -5000.0, 5000.0  # the operator zooms out to see the transient
+    for k in range(200, 220):
+        put(k, 3e-4)  # new values that would move the automatic range
+        pump()
+    assert (rng.start, rng.end) == (-5000.0, 5000.0)  # held
+    rng.start, rng.end = rng.reset_start, rng.reset_end  # what the reset tool does
+    for _ in range(8):
+        pump()
+    assert (rng.start, rng.end) != (-5000.0, 5000.0) and rng.end < 200.0  # automatic again
+    moved = rng.end
+
+    clk.now += 3.0  # no packet for 3 s of the receiver clock > stale_s = 2
+    for _ in range(4):  # one second of ticks at 250 ms
+        pump()
+    assert "STALE DATA: no packet for 3 s" in doc.get_model_by_name("stale").text
+    put(300, 1e-5)
+    for _ in range(4):
+        pump()
+    assert doc.get_model_by_name("stale").text == ""  # cleared by the next packet
+    assert rng.end == pytest.approx(moved, rel=0.5)
+
+
 @pytest.mark.zenoh
 @pytest.mark.timeout(60)
 def test_zenoh_source_on_loopback():
@@ -156,6 +270,8 @@ def test_monitor_cli_rejects_bad_options(capsys):
                        (["tui", "--connect", "tcp/10.0.0.1:7448"], "not a loopback"),
                        (["web", "--port", "0"], "--port"),
                        (["web", "--period-ms", "1000"], "≥ 2 Hz"),
+                       (["web", "--stale-s", "0"], "--stale-s must be > 0"),
+                       (["tui", "--stale-s", "-1"], "--stale-s must be > 0"),
                        ([], "choose a dashboard")):
         assert cli_run(p.parse_args(argv)) == 2
         assert text in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import io
 import math
+from pathlib import Path
 
 import pytest
 
@@ -45,6 +46,8 @@ def large_packet(seq: int = 7, t: float = 1234.5, flags: int = 0) -> dict:
                   "freq_offset_ppm": 40.01, "offset_s": 0.0049, "tag_error_sigma_s": 0.0029,
                   "counters": {"samples": 1000, "repeated": 3, "missing": 2}},
         "counters": {"siru_samples": 1000, "st1_used": 99, "st2_used": 98, "input_rejected": 0},
+        "latency": {"configured_s": 0.115, "residual_s": 0.002, "estimate_s": 0.117,
+                    "sigma_s": 0.0021},
     }
 
 
@@ -135,5 +138,66 @@ def test_tui_waits_then_picks_first_vehicle(MonitorApp):
             assert app.vehicle == "zz9"
             assert "PARITY_ALARM" in text_of(app.query_one("#status"))
             assert app.query_one("#params").get_cell("μ", "e0") == "-17.7 ± 3.20"
+
+    asyncio.run(go())
+
+
+def rendered_lines(widget) -> list[str]:
+    """The text of every line a widget renders on screen now (what the operator sees)."""
+    return ["".join(seg.text for seg in widget.render_line(y)) for y in range(widget.size.height)]
+
+
+def test_tui_started_before_data_renders_full_values_and_survives_resize(MonitorApp):
+    """The natural order: the dashboard is up before the node publishes. The parameter table's
+    columns must not stay sized for the "—" placeholders (issue #21: `λ ppm -183. -389. -1004 6`);
+    cold-start values (4-digit estimates, 3-digit σ) render whole, before and after a resize."""
+    clock = FakeClock()
+    store = LatestStore(clock=clock)
+    pkt = large_packet(flags=int(Flag.GYRO_C_FAILED | Flag.NOT_CONVERGED))
+    pkt["mode"] = "converging"
+    pkt["est"]["lam"] = [-183.2 * PPM, -389.5 * PPM, -1004.6 * PPM, 6.0 * PPM]
+    pkt["sigma"]["lam"] = [350.0 * PPM] * 4
+    pkt["est"]["b"][1] = -123.4567 * DEG_PER_HR
+    pkt["sigma"]["b"] = [999.0 * DEG_PER_HR] * 4
+    pkt["excluded"] = [3]
+    want = ["-183.2 ± 350.00", "-389.5 ± 350.00", "-1004.6 ± 350.00", "6.0 ± 350.00",
+            "-123.4567 ± 999.00000", "816.9 ± 0.70"]
+
+    async def go():
+        app = MonitorApp(store, vehicle="sc1", refresh_s=0.05, stale_s=2.0)
+        async with app.run_test(size=(200, 50)) as pilot:
+            await pilot.pause(0.2)  # several refreshes with no data: the table is laid out
+            params = app.query_one("#params")
+            assert params.get_cell("λ", "e0") == "—"
+            store.put("sc1", "tlm/large", pkt)
+            for _ in range(50):  # wait for the refresh timer to show the packet
+                await pilot.pause(0.05)
+                if params.get_cell("λ", "e2") != "—":
+                    break
+            screen = "\n".join(rendered_lines(params))
+            for w in want:
+                assert w in screen, f"{w!r} truncated or missing in:\n{screen}"
+            gyro_row = next(line for line in rendered_lines(params) if "gyro status" in line)
+            assert "FAILED" in gyro_row and "excluded" in gyro_row
+            current = text_of(app.query_one("#current"))
+            assert "tracker latency ± 1σ [ms]" in current and "117.00 ± 2.10" in current
+            assert "Euler 3-2-1 yaw pitch roll [deg]" in current  # units shown, not eaten as markup
+            assert "C FAILED" in current and "D excluded" in current
+            assert "+0.000000 +0.000000 +0.000000 +1.000000" in current
+            assert "+0.0573" in current  # ω_y = 1 mrad/s in deg/s
+            await pilot.resize_terminal(230, 50)
+            await pilot.pause(0.2)
+            screen = "\n".join(rendered_lines(params))
+            for w in want:
+                assert w in screen, f"after resize: {w!r} truncated or missing in:\n{screen}"
+            assert "STALE" not in text_of(app.query_one("#status"))
+            artifacts = Path(__file__).parent / "artifacts"
+            artifacts.mkdir(exist_ok=True)
+            if not (artifacts / ".gitignore").exists():  # keep screenshots out of git
+                (artifacts / ".gitignore").write_text("*\n")
+            app.save_screenshot(filename="monitor_tui.svg", path=str(artifacts))
+            clock.now += 3.0  # no packet for 3 s of the receiver clock > stale_s = 2
+            await pilot.pause(0.2)
+            assert "STALE DATA" in text_of(app.query_one("#status"))
 
     asyncio.run(go())
