@@ -59,6 +59,7 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
         for i, reader in enumerate(readers):
             if i > 0:
                 _write(writer, sp.end_stream("cold" if cold else "warm"))
+            sp.streams.source = str(inputs[i])
             feed = sp.feed
             for topic, log_ns, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
                 if topic == "/truth/params":
@@ -112,7 +113,8 @@ def make_summary(sp: StreamProcessor) -> dict[str, Any]:
                 "st2_used", "st2_edited", "input_rejected")},
             "converged": e.mode == "converged", "mode": e.mode, "flags": sp.flag_names(),
             "latency_st": e.latency_estimate(),  # extension: tracker latency estimate, s
-            "clock": clock_summary(sp.clock)}  # extension: SIRU clock state at the end
+            "clock": clock_summary(sp.clock),  # extension: SIRU clock state at the end
+            "streams": sp.streams.summary(e)}  # extension: per-stream records (stream_log)
 
 
 def clock_summary(clock) -> dict[str, Any]:
