@@ -21,6 +21,7 @@ from typing import Any
 import msgpack
 
 from monitors.common import GROUP_LABELS, ORDER, PAPER_UNITS, element_names, group_paper
+from radical_rt.outpaths import output_file
 from replayer.archive import ArchiveError, ArchiveReader
 
 
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("archive", help="simulated input archive (has /truth/params)")
     ap.add_argument("summaries", nargs="+", help="summary JSON files of `radical process`")
     ap.add_argument("--labels", help="comma-separated column labels (default: file stems)")
-    ap.add_argument("--out", help="also write the table to this file")
+    ap.add_argument("--out", type=output_file, help="also write the table to this file")
     a = ap.parse_args(argv)
     labels = a.labels.split(",") if a.labels else [Path(p).stem for p in a.summaries]
     if len(labels) != len(a.summaries):

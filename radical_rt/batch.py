@@ -24,6 +24,7 @@ from replayer.archive import ArchiveError, ArchiveReader, ArchiveWriter
 from .clock import ClockConfig, SiruClock
 from .conventions import PAPER_UNITS, to_paper_units
 from .filter import Engine
+from .outpaths import OutputPathError, output_file, prepare_output
 from .paper_table import format_table, rows
 from .params import ParamError, ParamTable
 from .state import PARAM_GROUPS
@@ -45,7 +46,11 @@ def make_processor(table: ParamTable | None = None, clock_mode: str = "reconstru
 def process(inputs: list[str], out_path: str | None, summary_path: str | None = None, *,
             cold: bool = False, table: ParamTable | None = None, clock_mode: str = "reconstruct",
             packets_path: str | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run the engine over the input archives in order; return the summary (paper units)."""
+    """Run the engine over the input archives in order; return the summary (paper units).
+    The output paths' parent directories are created first (OutputPathError if impossible)."""
+    for path in (out_path, summary_path):
+        if path:
+            prepare_output(path)
     readers = [ArchiveReader(p) for p in inputs]
     for r in readers:
         r.require_inputs()
@@ -156,8 +161,8 @@ def summary_table(summary: dict[str, Any]) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IN.mcap", help="input archives (disjoint streams, in order)")
-    p.add_argument("-o", "--output", metavar="OUT.mcap", help="output archive (telemetry, fault, diag)")
-    p.add_argument("--summary", metavar="SUMMARY.json", help="write the summary file here")
+    p.add_argument("-o", "--output", metavar="OUT.mcap", type=output_file, help="output archive (telemetry, fault, diag)")
+    p.add_argument("--summary", metavar="SUMMARY.json", type=output_file, help="write the summary file here")
     p.add_argument("--cold", action="store_true", help="cold-start every stream (default: warm start + bump)")
     p.add_argument("--config", metavar="PARAMS.toml", help="parameter overrides ([params] table)")
     p.add_argument("--packets", metavar="PACKETS.toml", help="telemetry packet configuration")
@@ -171,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
         table = ParamTable.from_toml(args.config) if args.config else None
         summary = process(args.inputs, args.output, args.summary, cold=args.cold, table=table,
                           clock_mode=args.clock, packets_path=args.packets, progress=not args.quiet)
-    except (ArchiveError, ParamError, PacketError) as exc:
+    except (ArchiveError, ParamError, PacketError, OutputPathError) as exc:
         print(f"radical process: {exc}", file=sys.stderr)
         return 2
     if not args.quiet:

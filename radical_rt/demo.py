@@ -23,6 +23,7 @@ from pathlib import Path
 import msgpack
 
 from .batch import summary_table
+from .outpaths import output_dir
 
 VEHICLE = "messenger"
 
@@ -91,7 +92,7 @@ def _truth(sim: Path) -> dict | None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="radical-demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="out", help="output directory (default: out)")
+    ap.add_argument("--out", default="out", type=output_dir, help="output directory (default: out)")
     ap.add_argument("--duration", type=float, default=None, help="seconds (default: 7200)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--port", type=int, default=None, help="node port (default: a free one)")

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from . import zconfig
+from .outpaths import output_file
 
 log = logging.getLogger("radical.node")
 
@@ -50,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume-new-stream", action="store_true",
                    help="resume the calibration but start a new stream (clock phase forgotten, "
                         "warm start); default: continue the checkpointed stream")
-    p.add_argument("--checkpoint", metavar="PATH",
+    p.add_argument("--checkpoint", metavar="PATH", type=output_file,
                    help="checkpoint file (written periodically, on command and at shutdown)")
     p.add_argument("--checkpoint-every", type=float, default=60.0, metavar="S",
                    help="seconds of wall time between checkpoints (default 60)")
@@ -74,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run the filter loop with the real-time policy SCHED_FIFO at priority "
                         "N (1-99; needs root or CAP_SYS_NICE; default: time-sharing)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
-    p.add_argument("--timing-out", metavar="PATH.npz",
+    p.add_argument("--timing-out", metavar="PATH.npz", type=output_file,
                    help="record per-message filter-loop timing (monotonic ns: taken, loop, fed, "
                         "published) and garbage collections; write them to PATH.npz at exit "
                         "(perf/bench_latency.py)")
