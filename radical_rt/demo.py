@@ -108,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     toml.write_text('base = "2006216"\nt_start_s = 1000.0\n')
     ep = f"tcp/127.0.0.1:{args.port or free_port()}"
     t0 = time.monotonic()
+    print("note: the first run compiles the Numba kernels (about a minute, in the synthesizer and "
+          "the node); later runs load them from the cache", flush=True)
     print(f"[1/5] synthesizing scenario 2006216 (seed {args.seed}) → {sim}", flush=True)
     synthesize(str(toml), sim, seed=args.seed, duration=args.duration, progress=True)
     print(f"[2/5] starting radical node and radical record on {ep}", flush=True)

@@ -155,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
                                       args.resume_new_stream)
     except (ValueError, ParamError, PacketError, CheckpointError) as exc:
         return _fail(str(exc))
+    log.info("compiling Numba kernels (first run only: up to a minute; later runs load them "
+             "from the cache)…")
     jit_s = warm_up(args.clock)
     log.info("Numba kernels ready in %.2f s", jit_s)
     # Everything allocated so far (modules, compiled kernels, processors) lives for the whole run:
