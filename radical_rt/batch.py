@@ -190,4 +190,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"tracker latency {1e3 * lat['estimate_s']:.2f} ± {1e3 * lat['sigma_s']:.2f} ms "
               f"(configured {1e3 * lat['configured_s']:.2f} ms)")
         print(clock_line(summary["clock"]))
+        for st in summary["streams"] if len(summary["streams"]) > 1 else []:
+            print(stream_line(st))
     return 0
+
+
+def stream_line(st: dict[str, Any]) -> str:
+    """One line per stream of a multi-stream run (its end estimates are in the summary's
+    ``streams``)."""
+    t0, t1 = st["t_bus"]
+    span = f"t_bus {t0:.2f}–{t1:.2f} s" if t0 is not None else "no input"
+    bump = f" + bump ({st['bump']['mode']})" if st["bump"] else ""
+    return (f"stream {st['index']} ({st['source'] or '?'}): {st['start']} start{bump}, {span}, "
+            f"ended {st['mode']} at t = {st['t_end']:.2f} s")

@@ -62,6 +62,16 @@ def test_every_output_message_carries_the_stream_index(two):
     assert set(seen["/fault"]) <= {0, 1}
 
 
+def test_process_prints_one_line_per_stream(archives, tmp_path, capsys):  # noqa: F811
+    from radical_rt.cli import main
+
+    a, b = str(archives["a60"]), str(archives["b60"])
+    assert main(["process", a, b, "--summary", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"stream 0 ({a}): cold start, t_bus" in out
+    assert f"stream 1 ({b}): warm start + bump (add), t_bus" in out
+
+
 def test_cold_streams(archives, tmp_path):  # noqa: F811
     s = process([str(archives["a60"]), str(archives["b60"])], None, cold=True)
     assert [x["start"] for x in s["streams"]] == ["cold", "cold"]
