@@ -41,6 +41,7 @@ from monitors.allan_core import (
     param_table,
 )
 from radical_rt.conventions import ARCSEC, DEG, DEG_PER_HR
+from radical_rt.outpaths import output_dir
 
 TERM_NAMES = {"N": "angle random walk N", "B": "bias instability B", "K": "rate random walk K",
               "Q": "quantization Q"}
@@ -183,7 +184,7 @@ def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN.mcap", help="archive with a /siru channel")
     p.add_argument("--segment", metavar="T0:T1", help="bus-time segment in s (default: all)")
-    p.add_argument("-o", "--out", "--output", dest="out", metavar="DIR",
+    p.add_argument("-o", "--out", "--output", dest="out", metavar="DIR", type=output_dir,
                    help="output directory (default: <stem>_allan)")
     p.add_argument("--max-rate-dev", type=float, default=0.01, metavar="DEG_S",
                    help="refuse a segment whose 10 s mean rates move more (deg/s, default 0.01)")

@@ -40,12 +40,20 @@ def _stale(p: argparse.ArgumentParser) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="monitor", metavar="{tui,web,foxglove}")
-    tui = sub.add_parser("tui", help="terminal dashboard (textual)")
+    tui = sub.add_parser("tui", help="terminal dashboard (textual)", description=(
+        "Terminal dashboard of a running node: attitude, mode and flags, parameter estimates "
+        "± 1σ, residuals and the SIRU clock, from radical/<V>/tlm/*, fault and diag and the "
+        "node's liveliness token. Needs the optional package textual. With neither --listen nor "
+        "--connect it connects to the node's default endpoint tcp/127.0.0.1:7448."))
     _common(tui)
     tui.add_argument("--refresh", type=float, default=0.5, metavar="S",
                      help="screen refresh period in seconds (default 0.5)")
     _stale(tui)
-    web = sub.add_parser("web", help="web dashboard (Bokeh server on 127.0.0.1)")
+    web = sub.add_parser("web", help="web dashboard (Bokeh server on 127.0.0.1)", description=(
+        "Web dashboard of a running node: a Bokeh server bound to 127.0.0.1 (--port) plotting "
+        "attitude, estimates ± 1σ, residuals, flags and the SIRU clock from radical/<V>/tlm/*, "
+        "fault and diag. Needs the optional package bokeh. With neither --listen nor --connect "
+        "it connects to the node's default endpoint tcp/127.0.0.1:7448."))
     _common(web)
     web.add_argument("--port", type=int, default=5006, help="HTTP port on 127.0.0.1 (default 5006)")
     web.add_argument("--period-ms", type=int, default=250,
@@ -53,7 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     web.add_argument("--keep", type=int, default=3600,
                      help="tlm/large packets kept per vehicle in the plots (default 3600)")
     _stale(web)
-    fox = sub.add_parser("foxglove", help="Foxglove WebSocket server on 127.0.0.1 (foxglove-sdk)")
+    fox = sub.add_parser("foxglove", help="Foxglove WebSocket server on 127.0.0.1 (foxglove-sdk)",
+                         description=("Foxglove WebSocket server on 127.0.0.1 republishing a "
+                                      "node's outputs for the Foxglove app or Lichtblick. Needs "
+                                      "the optional package foxglove-sdk."))
     _common(fox)
     fox.add_argument("--port", type=int, default=8765,
                      help="WebSocket port on 127.0.0.1 (default 8765; 0 = any free port)")

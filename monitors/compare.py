@@ -4,9 +4,12 @@
 
 Each summary's estimates are compared with the last ``/truth/params`` message of the archive (SI,
 converted to the paper's units): the table gives error/σ per parameter and each run's σ, then
-max |error/σ|, RMS error/σ, tracker edits and the latency estimate when the summary has one. Only
-contract-level data are used (summary JSON, the archive's truth channel). Exit status 2 on a
-missing file or an archive without truth.
+max |error/σ|, RMS error/σ, tracker edits, mode and convergence, and the latency estimate when
+the summary has one. Only contract-level data are used (summary JSON, the archive's truth
+channel), plus two optional summary extensions for provenance: a summary whose ``truth`` differs
+from the archive's, or whose ``streams`` name no input with the archive's file name, belongs to
+another archive and is refused (exit 2) unless ``--force`` (then a loud warning). Exit status 2
+on a missing file, an archive without truth or a foreign summary.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Any
 import msgpack
 
 from monitors.common import GROUP_LABELS, ORDER, PAPER_UNITS, element_names, group_paper
+from radical_rt.outpaths import output_file
 from replayer.archive import ArchiveError, ArchiveReader
 
 
@@ -59,6 +63,9 @@ def table(truth: dict[str, list[float]], runs: list[tuple[str, dict[str, Any]]])
         f"{math.sqrt(sum(v * v for v in f) / len(f)):.2f} | " for f in flat) + " |")
     lines.append("| tracker edits (ST1 + ST2) | | " + " | ".join(
         f"{s['counters']['st1_edited'] + s['counters']['st2_edited']} | " for _, s in runs) + " |")
+    lines.append("| mode | | " + " | ".join(f"{s.get('mode', '?')} | " for _, s in runs) + " |")
+    lines.append("| converged | | " + " | ".join(
+        f"{'yes' if s.get('converged') else 'NO'} | " for _, s in runs) + " |")
     if all("latency_st" in s for _, s in runs):
         lines.append("| tracker latency estimate | ms | " + " | ".join(
             f"{1e3 * s['latency_st']['estimate_s']:.2f} | {1e3 * s['latency_st']['sigma_s']:.2f}"
@@ -66,12 +73,31 @@ def table(truth: dict[str, list[float]], runs: list[tuple[str, dict[str, Any]]])
     return "\n".join(lines)
 
 
+def provenance_problem(archive: str | Path, truth: dict[str, list[float]],
+                       summary: dict[str, Any]) -> str:
+    """Why ``summary`` does not come from ``archive`` ("" if nothing says so): its ``truth``
+    (paper units) differs from the archive's, or its ``streams`` sources name other files."""
+    st = summary.get("truth")
+    if isinstance(st, dict):
+        for g in ORDER:
+            if g in st and not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+                                   for a, b in zip(st[g], truth[g], strict=False)):
+                return f"its truth ({GROUP_LABELS[g]}) differs from {Path(archive).name}'s"
+    sources = [x.get("source") for x in summary.get("streams") or [] if isinstance(x, dict)]
+    sources = [str(x) for x in sources if x]
+    if sources and Path(archive).name not in {Path(x).name for x in sources}:
+        return f"it was made from {', '.join(Path(x).name for x in sources)}"
+    return ""
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("archive", help="simulated input archive (has /truth/params)")
     ap.add_argument("summaries", nargs="+", help="summary JSON files of `radical process`")
     ap.add_argument("--labels", help="comma-separated column labels (default: file stems)")
-    ap.add_argument("--out", help="also write the table to this file")
+    ap.add_argument("--out", type=output_file, help="also write the table to this file")
+    ap.add_argument("--force", action="store_true",
+                    help="compare summaries that belong to another archive (warned)")
     a = ap.parse_args(argv)
     labels = a.labels.split(",") if a.labels else [Path(p).stem for p in a.summaries]
     if len(labels) != len(a.summaries):
@@ -83,6 +109,15 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ArchiveError, json.JSONDecodeError) as exc:
         print(f"compare: {exc}", file=sys.stderr)
         return 2
+    for (lab, s), p in zip(runs, a.summaries, strict=True):
+        why = provenance_problem(a.archive, truth, s)
+        if why and not a.force:
+            print(f"compare: {p} does not belong to {a.archive}: {why} (--force compares "
+                  f"anyway)", file=sys.stderr)
+            return 2
+        if why:
+            print(f"compare: WARNING: {p} ({lab}) does not belong to {a.archive}: {why}; "
+                  f"its error/σ are meaningless", file=sys.stderr)
     text = table(truth, runs)
     print(text)
     if a.out:

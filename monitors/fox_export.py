@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from monitors.fox_convert import DERIVED_SCHEMAS, FoxgloveConverter, siru_known_schema
 from monitors.fox_schema import SchemaBuilder, known_schema
+from radical_rt.outpaths import output_file
 
 #: topics whose shape is fixed by the contract: their schema is inferred from the first messages
 _FIXED = {"/siru", "/st1", "/st2", "/temp", "/tlm/small", "/truth/attitude", "/truth/siru_time"}
@@ -190,6 +191,7 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN.mcap", help="any RADICAL-RT archive (input or output)")
     p.add_argument("-o", "--out", "--output", dest="out", required=True, metavar="OUT.mcap",
+                   type=output_file,
                    help="the archive to write")
     p.add_argument("--foxglove", action="store_true",
                    help="json + jsonschema for Foxglove / Lichtblick (the only format so far)")

@@ -57,6 +57,7 @@ from monitors.common import (
 )
 from radical_rt.conventions import SI_PER_PAPER_UNIT
 from radical_rt.flags import GYRO_FAILED
+from radical_rt.outpaths import output_dir
 from radical_rt.paper_table import rows as paper_rows
 
 TLM_TOPICS = ("/tlm/large", "/tlm/medium")
@@ -883,6 +884,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="OUT.mcap",
                    help="output archives (radical process / radical record)")
     p.add_argument("-o", "--out", "--output", dest="out", required=True, metavar="DIR",
+                   type=output_dir,
                    help="output directory (created)")
     p.add_argument("--labels", metavar="L1,L2", help="one label per archive (default: file stems)")
     p.add_argument("--max-points", type=int, default=1500, metavar="N",

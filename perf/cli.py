@@ -15,6 +15,8 @@ import json
 import sys
 from pathlib import Path
 
+from radical_rt.outpaths import output_dir
+
 BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine": "perf.bench_engine",
            "clock": "perf.bench_clock", "fdi": "perf.bench_fdi_bank", "startup": "perf.bench_startup",
            "latency": "perf.bench_latency", "capacity": "perf.bench_capacity"}
@@ -24,7 +26,7 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="quick", choices=("smoke", "quick", "full"))
     p.add_argument("--only", nargs="*", choices=list(BENCHES), help="run only these benchmarks")
-    p.add_argument("--out", default=str(DEFAULT_OUT), help="result directory")
+    p.add_argument("--out", default=str(DEFAULT_OUT), type=output_dir, help="result directory")
 
 
 def run(args: argparse.Namespace) -> int:

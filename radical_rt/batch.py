@@ -24,6 +24,7 @@ from replayer.archive import ArchiveError, ArchiveReader, ArchiveWriter
 from .clock import ClockConfig, SiruClock
 from .conventions import PAPER_UNITS, to_paper_units
 from .filter import Engine
+from .outpaths import OutputPathError, output_file, prepare_output
 from .paper_table import format_table, rows
 from .params import ParamError, ParamTable
 from .state import PARAM_GROUPS
@@ -45,7 +46,11 @@ def make_processor(table: ParamTable | None = None, clock_mode: str = "reconstru
 def process(inputs: list[str], out_path: str | None, summary_path: str | None = None, *,
             cold: bool = False, table: ParamTable | None = None, clock_mode: str = "reconstruct",
             packets_path: str | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run the engine over the input archives in order; return the summary (paper units)."""
+    """Run the engine over the input archives in order; return the summary (paper units).
+    The output paths' parent directories are created first (OutputPathError if impossible)."""
+    for path in (out_path, summary_path):
+        if path:
+            prepare_output(path)
     readers = [ArchiveReader(p) for p in inputs]
     for r in readers:
         r.require_inputs()
@@ -59,6 +64,7 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
         for i, reader in enumerate(readers):
             if i > 0:
                 _write(writer, sp.end_stream("cold" if cold else "warm"))
+            sp.streams.source = str(inputs[i])
             feed = sp.feed
             for topic, log_ns, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
                 if topic == "/truth/params":
@@ -112,7 +118,8 @@ def make_summary(sp: StreamProcessor) -> dict[str, Any]:
                 "st2_used", "st2_edited", "input_rejected")},
             "converged": e.mode == "converged", "mode": e.mode, "flags": sp.flag_names(),
             "latency_st": e.latency_estimate(),  # extension: tracker latency estimate, s
-            "clock": clock_summary(sp.clock)}  # extension: SIRU clock state at the end
+            "clock": clock_summary(sp.clock),  # extension: SIRU clock state at the end
+            "streams": sp.streams.summary(e)}  # extension: per-stream records (stream_log)
 
 
 def clock_summary(clock) -> dict[str, Any]:
@@ -154,8 +161,8 @@ def summary_table(summary: dict[str, Any]) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IN.mcap", help="input archives (disjoint streams, in order)")
-    p.add_argument("-o", "--output", metavar="OUT.mcap", help="output archive (telemetry, fault, diag)")
-    p.add_argument("--summary", metavar="SUMMARY.json", help="write the summary file here")
+    p.add_argument("-o", "--output", metavar="OUT.mcap", type=output_file, help="output archive (telemetry, fault, diag)")
+    p.add_argument("--summary", metavar="SUMMARY.json", type=output_file, help="write the summary file here")
     p.add_argument("--cold", action="store_true", help="cold-start every stream (default: warm start + bump)")
     p.add_argument("--config", metavar="PARAMS.toml", help="parameter overrides ([params] table)")
     p.add_argument("--packets", metavar="PACKETS.toml", help="telemetry packet configuration")
@@ -169,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
         table = ParamTable.from_toml(args.config) if args.config else None
         summary = process(args.inputs, args.output, args.summary, cold=args.cold, table=table,
                           clock_mode=args.clock, packets_path=args.packets, progress=not args.quiet)
-    except (ArchiveError, ParamError, PacketError) as exc:
+    except (ArchiveError, ParamError, PacketError, OutputPathError) as exc:
         print(f"radical process: {exc}", file=sys.stderr)
         return 2
     if not args.quiet:
@@ -183,4 +190,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"tracker latency {1e3 * lat['estimate_s']:.2f} ± {1e3 * lat['sigma_s']:.2f} ms "
               f"(configured {1e3 * lat['configured_s']:.2f} ms)")
         print(clock_line(summary["clock"]))
+        for st in summary["streams"] if len(summary["streams"]) > 1 else []:
+            print(stream_line(st))
     return 0
+
+
+def stream_line(st: dict[str, Any]) -> str:
+    """One line per stream of a multi-stream run (its end estimates are in the summary's
+    ``streams``)."""
+    t0, t1 = st["t_bus"]
+    span = f"t_bus {t0:.2f}–{t1:.2f} s" if t0 is not None else "no input"
+    bump = f" + bump ({st['bump']['mode']})" if st["bump"] else ""
+    return (f"stream {st['index']} ({st['source'] or '?'}): {st['start']} start{bump}, {span}, "
+            f"ended {st['mode']} at t = {st['t_end']:.2f} s")

@@ -38,6 +38,7 @@ from . import __version__, ckpt_state
 from . import ckpt_validate as cv
 from .params import ParamError
 from .stream import StreamProcessor
+from .stream_log import bump_applied
 from .telemetry import PacketError, PacketSpec, parse_packets
 
 SCHEMA = "radical.node_checkpoint/2"
@@ -58,7 +59,8 @@ def capture(sp: StreamProcessor, vehicle: str = "") -> dict[str, Any]:
                         "decimation": s.decimation, "trigger": s.trigger, "seq": s.seq}
                     for n, s in sp.packets.items()},
         "stream": {"rejected": dict(sp.rejected), "late_dropped": int(sp.late_dropped),
-                   "temps": dict(sp.temps)},
+                   "temps": dict(sp.temps), "index": int(sp.streams.index),
+                   "start": sp.streams.start, "bumped": sp.streams.bump is not None},
         "running": ckpt_state.capture(sp),
         "t": float(e.t), "mode": e.mode,
     }
@@ -155,6 +157,12 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False,
             raise cv.CheckpointFieldError("stream.temps: expected a small map")
         temps = {str(k)[:64]: cv.number(v, f"stream.temps.{str(k)[:20]}", -300.0, 1000.0)
                  for k, v in temps.items()}
+        index = cv.number(st.get("index", 0), "stream.index", 0, cv.INT_MAX, integer=True)
+        start = st.get("start", "resume")  # (older checkpoints: no index, start or bumped)
+        if start not in ("cold", "warm", "resume"):
+            raise cv.CheckpointFieldError(f"stream.start: expected cold, warm or resume, got "
+                                          f"{str(start)[:20]!r}")
+        bumped = st.get("bumped", False) is True
         plan = ckpt_state.check(cv.need(state, "running", "state"), sp)
     except (cv.CheckpointFieldError, ParamError) as exc:
         raise CheckpointError(f"does not fit this node: {exc}") from None
@@ -167,10 +175,14 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False,
     sp.late_dropped = late
     sp.temps.clear()
     sp.temps.update(temps)
+    sp.streams.index = index
+    sp.streams.begin(start, bump_applied(e.si) if bumped else None)
     if new_stream or bump:  # a new stream: forget the read sequence and the clock phase
         sp.clock.reset()
         sp._begin_stream()
         e.warm_start(bump=bump)
+        sp.streams.index = index + 1
+        sp.streams.begin("warm", bump_applied(e.si) if bump else None)
         sp.last_reject_t = -math.inf
 
 

@@ -193,7 +193,7 @@ def check(m: Any, sp) -> dict[str, Any]:
         st["det"] = {k: (_opt_time(cv.need(d, k, w + ".det"), f"{w}.det.{k}")
                          if k.startswith("t_") else None) for k in ParityDetector.STATE}
         for k in ("s_pos", "s_neg"):
-            st["det"][k] = cv.number(d[k], f"{w}.det.{k}", 0.0, 1e300)
+            st["det"][k] = cv.number(cv.need(d, k, w + ".det"), f"{w}.det.{k}", 0.0, 1e300)
         for k in ("run", "quiet"):
             st["det"][k] = int(cv.number(cv.need(d, k, w + ".det"), f"{w}.det.{k}", 0,
                                          cv.INT_MAX, integer=True))

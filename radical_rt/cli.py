@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
+import warnings
+
+from . import __version__
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -31,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Parser with one sub-parser per available subcommand."""
     parser = argparse.ArgumentParser(
         prog="radical", description="RADICAL-RT: RIMU calibration and attitude determination")
+    parser.add_argument("--version", action="version", version=f"radical {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         try:
@@ -43,11 +48,31 @@ def build_parser() -> argparse.ArgumentParser:
         except ImportError as exc:  # one broken subcommand must not take the others down
             _broken(sub, name, help_text, exc)
             continue
-        p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
+        p = sub.add_parser(name, help=help_text, description=plain_text(mod.__doc__ or help_text),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")  # :class:`~a.b.C`, :func:`f`
+
+
+def plain_text(doc: str) -> str:
+    """A module docstring as terminal help: reStructuredText markup removed (````x```` → x,
+    :role:`~a.b.C` → C, :role:`a.b` → a.b, a literal block's ``::`` → ``:``)."""
+    def role(m: re.Match) -> str:
+        target = m.group(1)
+        return target.rsplit(".", 1)[-1] if m.group(0).split("`")[1].startswith("~") else target
+
+    text = _ROLE.sub(role, doc.strip())
+    text = text.replace("``", "")
+    return re.sub(r"(\S)::$", r"\1:", text, flags=re.M)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings on the command line: one clean line, no Python source line."""
+    print(f"radical: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
 def _broken(sub, name: str, help_text: str, exc: Exception) -> None:
@@ -69,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with warnings.catch_warnings():  # (restores the display when main returns)
+            warnings.showwarning = _show_warning
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -21,8 +21,11 @@ status             – → t, mode, flags, flag_names, q_body_from_inertial, est
 get_params         – → params (active table), default (default table)
 set_params         params {name: value} (active table, all-or-nothing) → params (changed)
 reset_params       – (active ← default) → params
-bump               sigma {group: [1σ per state, SI]}, mode "add"|"scale" (default: table's
-                   bump_mode) → sigma (after the bump)
+bump               sigma {name: [1σ per state]}, mode "add"|"scale" (default: table's
+                   bump_mode) → sigma (after the bump), mode. Names carry the paper unit, as
+                   set_params' bump_* names do: b_deg_hr, lam_ppm, mu_ppm, du_arcsec,
+                   dv_arcsec, phi2_arcsec; the reply's sigma uses the same names and units. A
+                   bare group name (b, lam, …) is CONTRACT §3.2's form: its values are SI.
 warm_start         bump true|false (default true: the table's bump) → mode
 cold_start         – → mode
 exclude_gyro       gyro 0..n−1 (at least 3 gyros must stay included) → excluded
@@ -50,16 +53,19 @@ import msgpack
 import numpy as np
 
 from . import ud
-from .conventions import ARCSEC, DEG_PER_HR, PPM
+from .conventions import PAPER_UNITS, from_paper_units, to_paper_units
 from .params import GROUP_BUMP, RANGES, ParamError, ParamTable
 from .state import PARAM_GROUPS, StateLayout
 from .stream import StreamProcessor
 from .telemetry import PacketError, PacketSpec, parse_packets
 
-_BUMP_UNIT = {"b": DEG_PER_HR, "lam": PPM, "mu": PPM, "du": ARCSEC, "dv": ARCSEC, "phi2": ARCSEC}
 _COMMON = {"cmd", "v", "id"}
 #: largest 1σ a bump may add per group [SI] (the table's bump_* ranges, :data:`params.RANGES`)
-BUMP_MAX_SI = {g: RANGES[name][1] * _BUMP_UNIT[g] for g, name in GROUP_BUMP.items()}
+BUMP_MAX_SI = {g: from_paper_units(g, RANGES[name][1]) for g, name in GROUP_BUMP.items()}
+#: group → its name with the paper unit at the command interface (the table's bump_* name less
+#: "bump_"): b_deg_hr, lam_ppm, mu_ppm, du_arcsec, dv_arcsec, phi2_arcsec
+BUMP_NAME = {g: name[len("bump_"):] for g, name in GROUP_BUMP.items()}
+_BUMP_GROUP = {n: g for g, n in BUMP_NAME.items()}
 
 
 class CommandError(ValueError):
@@ -146,12 +152,12 @@ def _p_set_params(a: dict, n: int) -> dict:
     return {"params": params}
 
 
-def _number_list(where: str, values: Any, size: int, hi: float) -> list[float]:
+def _number_list(where: str, values: Any, size: int, hi: float, unit: str) -> list[float]:
     if not isinstance(values, (list, tuple)) or len(values) != size:
         raise CommandError(f"{where}: expected a list of {size} numbers, got {_short(values)}")
     for v in values:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not _in(v, 0.0, hi):
-            raise CommandError(f"{where}: values must be numbers in [0, {hi:g}] (SI), "
+            raise CommandError(f"{where}: values must be numbers in [0, {hi:g}] ({unit}), "
                                f"got {_short(v)}")
     return [float(v) for v in values]
 
@@ -170,17 +176,29 @@ def _short(value: Any) -> str:
 
 
 def _p_bump(a: dict, n: int) -> dict:
+    """sigma {paper-unit name: [1σ]} (or a bare group name: SI) → {group: [1σ, SI]}."""
+    names = ", ".join(BUMP_NAME.values())
     sigma = a.get("sigma")
     if not isinstance(sigma, dict) or not sigma:
-        raise CommandError("bump: 'sigma' must be a non-empty map group → [1σ values, SI]; "
-                           f"groups: {', '.join(PARAM_GROUPS)}")
+        raise CommandError(f"bump: 'sigma' must be a non-empty map name → [1σ values]; names: "
+                           f"{names} (or a bare group name with SI values)")
     layout = StateLayout(n)
     out = {}
-    for group, values in sigma.items():
+    for key, values in sigma.items():
+        group = _BUMP_GROUP.get(key, key)
         if group not in PARAM_GROUPS:
-            raise CommandError(f"bump: unknown group {group!r}; groups: {', '.join(PARAM_GROUPS)}")
-        out[group] = _number_list(f"bump: sigma.{group}", values, layout.block(group).size,
-                                  BUMP_MAX_SI[group])
+            raise CommandError(f"bump: unknown group {key!r}; names: {names} (or a bare group "
+                               f"name with SI values: {', '.join(PARAM_GROUPS)})")
+        if group in out:
+            raise CommandError(f"bump: group {group!r} given twice ({BUMP_NAME[group]} and "
+                               f"{group})")
+        size, where = layout.block(group).size, f"bump: sigma.{key}"
+        if key == group:  # CONTRACT §3.2's form: SI
+            out[group] = _number_list(where, values, size, BUMP_MAX_SI[group], "SI")
+        else:
+            hi = RANGES[GROUP_BUMP[group]][1]
+            out[group] = [from_paper_units(group, v) for v in _number_list(
+                where, values, size, hi, PAPER_UNITS[group])]
     mode = a.get("mode")
     if mode is not None and mode not in ("add", "scale"):
         raise CommandError(f"bump: mode must be 'add' or 'scale', got {mode!r}")
@@ -285,7 +303,8 @@ def _a_bump(a: dict, t: Target) -> dict:
     if why:
         raise CommandError(f"bump: {why} (nothing changed)")
     e.bump(a["sigma"], mode)
-    return {"sigma": e.sigmas(), "mode": mode}
+    return {"sigma": {BUMP_NAME[g]: [float(to_paper_units(g, v)) for v in vals]
+                      for g, vals in e.sigmas().items() if g in BUMP_NAME}, "mode": mode}
 
 
 #: a "scale" bump may multiply a σ by at most this (larger factors break the conditioning of U)

@@ -23,6 +23,7 @@ from pathlib import Path
 import msgpack
 
 from .batch import summary_table
+from .outpaths import output_dir
 
 VEHICLE = "messenger"
 
@@ -91,7 +92,7 @@ def _truth(sim: Path) -> dict | None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="radical-demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="out", help="output directory (default: out)")
+    ap.add_argument("--out", default="out", type=output_dir, help="output directory (default: out)")
     ap.add_argument("--duration", type=float, default=None, help="seconds (default: 7200)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--port", type=int, default=None, help="node port (default: a free one)")
@@ -107,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     toml.write_text('base = "2006216"\nt_start_s = 1000.0\n')
     ep = f"tcp/127.0.0.1:{args.port or free_port()}"
     t0 = time.monotonic()
+    print("note: the first run compiles the Numba kernels (about a minute, in the synthesizer and "
+          "the node); later runs load them from the cache", flush=True)
     print(f"[1/5] synthesizing scenario 2006216 (seed {args.seed}) → {sim}", flush=True)
     synthesize(str(toml), sim, seed=args.seed, duration=args.duration, progress=True)
     print(f"[2/5] starting radical node and radical record on {ep}", flush=True)

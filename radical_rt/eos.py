@@ -25,8 +25,10 @@ NEXT = ("none", "warm", "cold")
 MAX_COUNT = 1 << 53
 
 
-def decode_eos(payload: bytes | dict, topics: tuple[str, ...]) -> tuple[str, dict[str, int]]:
-    """Marker → (next, counts per input topic). InputError (reason ``bad_eos``) if invalid."""
+def decode_eos(payload: bytes | dict,
+               topics: tuple[str, ...]) -> tuple[str, dict[str, int], str | None]:
+    """Marker → (next, counts per input topic, source or None). InputError (reason ``bad_eos``)
+    if invalid; a ``source`` that is not a string is ignored (at most 512 characters kept)."""
     from .packets import InputError, unpack  # (publishers import this module without Numba)
 
     try:
@@ -50,7 +52,8 @@ def decode_eos(payload: bytes | dict, topics: tuple[str, ...]) -> tuple[str, dic
             raise InputError("bad_eos", f"end-of-stream marker: counts[{k!r}] must be an "
                                         f"integer in 0..2**53, got {v!r}")
         counts[k] = v
-    return nxt, counts
+    source = msg.get("source")
+    return nxt, counts, source[:512] if isinstance(source, str) else None
 
 
 def make_eos(counts: dict[str, int], next_start: str = "none", **extra: Any) -> dict[str, Any]:

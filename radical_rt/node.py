@@ -415,7 +415,7 @@ class FilterNode:
         """An end-of-stream marker (:mod:`radical_rt.eos`): losses counted, everything held
         released (as at the end of ``radical process``), the next stream prepared."""
         try:
-            nxt, counts = decode_eos(data, INPUT_TOPICS)
+            nxt, counts, source = decode_eos(data, INPUT_TOPICS)
         except InputError as exc:
             _note_reject(v.sp, EOS_TOPIC, exc.reason, str(exc))
             return
@@ -431,7 +431,7 @@ class FilterNode:
             v.sp.note_reported_loss(lost)
             log.warning("%s: end of stream: %d input message(s) sent were never received",
                         v.name, lost)
-        self._publish(v, v.sp.end_stream(None) + v.sp.fault_now())
+        self._publish(v, v.sp.end_stream(None, source=source) + v.sp.fault_now())
         if nxt != "none":
             self._publish(v, v.sp.end_stream(nxt))
         v.holding = False

@@ -19,9 +19,9 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 
 from . import zconfig
+from .outpaths import output_file
 
 log = logging.getLogger("radical.node")
 
@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume-new-stream", action="store_true",
                    help="resume the calibration but start a new stream (clock phase forgotten, "
                         "warm start); default: continue the checkpointed stream")
-    p.add_argument("--checkpoint", metavar="PATH",
+    p.add_argument("--checkpoint", metavar="PATH", type=output_file,
                    help="checkpoint file (written periodically, on command and at shutdown)")
     p.add_argument("--checkpoint-every", type=float, default=60.0, metavar="S",
                    help="seconds of wall time between checkpoints (default 60)")
@@ -74,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run the filter loop with the real-time policy SCHED_FIFO at priority "
                         "N (1-99; needs root or CAP_SYS_NICE; default: time-sharing)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
-    p.add_argument("--timing-out", metavar="PATH.npz",
+    p.add_argument("--timing-out", metavar="PATH.npz", type=output_file,
                    help="record per-message filter-loop timing (monotonic ns: taken, loop, fed, "
                         "published) and garbage collections; write them to PATH.npz at exit "
                         "(perf/bench_latency.py)")
@@ -116,12 +116,7 @@ def _check(args: argparse.Namespace) -> str | None:
                        ("--force-vehicle", args.force_vehicle)):
         if given and not args.resume:
             return f"{opt} needs --resume"
-    for opt, path in (("--checkpoint", args.checkpoint), ("--timing-out", args.timing_out)):
-        if path:
-            parent = Path(path).resolve().parent
-            if not parent.is_dir():
-                return f"{opt} {path}: directory does not exist: {parent}"
-    return None
+    return None  # (--checkpoint / --timing-out: radical_rt.outpaths, while parsing)
 
 
 def _setup_logging(level: str) -> None:
@@ -154,6 +149,8 @@ def run(args: argparse.Namespace) -> int:
                                       args.resume_new_stream)
     except (ValueError, ParamError, PacketError, CheckpointError) as exc:
         return _fail(str(exc))
+    log.info("compiling Numba kernels (first run only: up to a minute; later runs load them "
+             "from the cache)…")
     jit_s = warm_up(args.clock)
     log.info("Numba kernels ready in %.2f s", jit_s)
     # Everything allocated so far (modules, compiled kernels, processors) lives for the whole run:

@@ -29,6 +29,7 @@ from .input_guard import TimeJump
 from .packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
 from .siru_wire import SS_WINDOW, WIRE_BACKWARDS, WIRE_DUPLICATE, WIRE_FALLBACK, WIRE_JUMP, SiruWire
 from .stream_guard import StreamGuards
+from .stream_log import StreamLog, bump_applied
 from .telemetry import PacketSpec, build, default_packets, read_field
 from .tracker_queue import (
     IN_BACKWARDS,
@@ -78,6 +79,7 @@ class StreamProcessor(StreamGuards):
         self._gq = GyroQueue(engine.n_gyro)
         self._wire = SiruWire(engine.n_gyro)  # compiled decoding of plain siru messages
         self._pred = np.zeros(9)  # the release kernel's prediction for sample packets (now())
+        self.streams = StreamLog()  # stream index (``stream`` of every output) and records
         self._begin_stream()
         engine.listener = self._on_window
         engine.wake_source = self._wake
@@ -90,6 +92,7 @@ class StreamProcessor(StreamGuards):
         self._tq.clear()  # t_max, released_t and the trackers' last times: −inf
         self.last_t: dict[str, float] = {}  # temp (siru's and the trackers' are in the queue's ss)
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
+        self._span_open = True  # the stream's first input time is still to be noted
         self._new_sample = False
         self._gq.clear()
 
@@ -127,6 +130,8 @@ class StreamProcessor(StreamGuards):
         else:
             if self._jumps.held:  # a message inside the window: the held candidates were false
                 self._discard_candidates()
+        if self._span_open:
+            self._note_first()
         if not released:
             self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
                           defer=topic != "siru")
@@ -134,6 +139,14 @@ class StreamProcessor(StreamGuards):
             self._new_sample = False
             self._sample_outputs()
         return self.take_outputs()
+
+    def _note_first(self) -> None:
+        """The stream's first input taken in: its bus time (the newest t_bus then) opens the
+        stream's span."""
+        t = self.t_max
+        if t > -math.inf:
+            self._span_open = False
+            self.streams.seen(t, t)
 
     def _check_time(self, topic: str, t: float) -> None:
         ss = self._tq.ss
@@ -259,8 +272,10 @@ class StreamProcessor(StreamGuards):
             predict = (pred, gq.end) + self.clock.state_arrays()
         e.release(gq.arrays(), a, z, tq.block(e1), predict)
 
-    def end_stream(self, next_start: str | None = "warm") -> list[tuple[str, dict[str, Any]]]:
-        """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start."""
+    def end_stream(self, next_start: str | None = "warm",
+                   source: str | None = None) -> list[tuple[str, dict[str, Any]]]:
+        """Finish the current stream; prepare the next one with a "warm" (bump) or "cold" start.
+        source: where the stream's input came from (archive path), kept in its record."""
         self._discard_candidates()  # held jump candidates never confirmed: rejected
         out = self.clock.flush()
         if len(out.t):
@@ -268,12 +283,20 @@ class StreamProcessor(StreamGuards):
         self._release(math.inf)
         if self.engine.att_valid:
             self.engine.flush_parity()
+        log = self.streams
+        if source is not None:
+            log.source = source
+        if not self._span_open:
+            log.seen(self.t_max, self.t_max)
         if next_start is not None:
+            log.end(self.engine)
             self.clock.reset()
             if next_start == "cold":
                 self.engine.cold_start()
+                log.begin("cold", None)
             else:
                 self.engine.warm_start(bump=True)
+                log.begin("warm", bump_applied(self.engine.si))
             self._begin_stream()
             for spec in self.packets.values():
                 spec.next_t = -math.inf
@@ -361,7 +384,7 @@ class StreamProcessor(StreamGuards):
 
     def _emit_fault(self, t: float) -> None:
         flags, prev = self.flags, self._last_flags or 0
-        self._out.append(("fault", {"v": 1, "t": t, "flags": flags,
+        self._out.append(("fault", {"v": 1, "stream": self.streams.index, "t": t, "flags": flags,
                                     "set": flag_names(flags & ~prev),
                                     "cleared": flag_names(prev & ~flags),
                                     "detail": self._fault_detail()}))
@@ -417,7 +440,8 @@ class StreamProcessor(StreamGuards):
         def field(name: str) -> Any:
             return read_field(name, self, memo)
 
-        return {"v": 1, "t": e.t, "flags": field("flags"), "mode": e.mode,
+        return {"v": 1, "stream": self.streams.index, "stream_info": self.streams.info(),
+                "t": e.t, "flags": field("flags"), "mode": e.mode,
                 "residuals": field("residuals"), "counters": field("counters"),
                 "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),

@@ -175,12 +175,13 @@ def load_packets(path: str | Path) -> dict[str, PacketSpec]:
 
 def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None,
           memo: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Build one packet map (with "v": 1) from the source's current state; fields named in
+    """Build one packet map (with "v": 1 and the stream index ``stream``, whatever the packet's
+    fields) from the source's current state; fields named in
     ``override`` take the given values instead (the predicted t, attitude and rate). ``memo``:
     field values already read from this same state (packets built at one event share them; the
     values are then shared objects, not copies), filled in as fields are read."""
     spec.seq += 1
-    msg: dict[str, Any] = {"v": 1}
+    msg: dict[str, Any] = {"v": 1, "stream": source.streams.index}
     for name in spec.fields:
         if name == "seq":
             msg[name] = spec.seq

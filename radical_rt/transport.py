@@ -31,6 +31,7 @@ from __future__ import annotations
 import functools
 import logging
 import queue
+import re
 import threading
 import time
 from collections import deque
@@ -563,4 +564,10 @@ class ZenohTransport:
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """The error's text on one line, without the source locations zenoh's Rust errors append
+    (`` at /root/.cargo/.../lib.rs:62.``)."""
+    text = _RUST_LOCATION.sub("", " ".join(str(exc).split())).strip()
+    return text or type(exc).__name__
+
+
+_RUST_LOCATION = re.compile(r"\s+at\s+\S+\.rs:\d+(:\d+)?\.?")

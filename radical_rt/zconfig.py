@@ -17,7 +17,7 @@ from typing import Any
 
 DEFAULT_PORT = 7448
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
-_LOOPBACK = re.compile(r"^tcp/(127\.\d{1,3}\.\d{1,3}\.\d{1,3}|localhost|\[::1\]):\d{1,5}$")
+_LOOPBACK = re.compile(r"^tcp/(127\.\d{1,3}\.\d{1,3}\.\d{1,3}|localhost|\[::1\]):(\d{1,5})$")
 
 
 class ZenohConfigError(ValueError):
@@ -26,8 +26,11 @@ class ZenohConfigError(ValueError):
 
 def check_endpoint(ep: str) -> str:
     """Return ep if it is a loopback TCP locator (tcp/127.x.x.x:PORT, tcp/localhost:PORT)."""
-    if not isinstance(ep, str) or not _LOOPBACK.match(ep):
+    m = _LOOPBACK.match(ep) if isinstance(ep, str) else None
+    if m is None:
         raise ZenohConfigError(f"endpoint {ep!r} is not a loopback locator like tcp/127.0.0.1:7448")
+    if not 1 <= int(m.group(2)) <= 65535:
+        raise ZenohConfigError(f"endpoint {ep!r}: port must be 1..65535, got {int(m.group(2))}")
     return ep
 
 

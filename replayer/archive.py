@@ -195,8 +195,9 @@ class ArchiveReader:
 
     A complete file is read through its summary and chunk index. For a truncated one (no valid
     summary/footer: its writer was killed) the index is rebuilt from the records before the tear
-    (bounds and chunk CRCs checked: a torn chunk is dropped whole), ``truncated`` is set and a
-    :class:`TruncatedArchiveWarning` plus a log warning name the file and the messages recovered.
+    (bounds and chunk CRCs checked: a torn chunk is dropped whole), ``truncated`` is set and
+    a :class:`TruncatedArchiveWarning` names the file and the messages recovered (the ``radical``
+    command line prints it as one clean line).
     Times are log_time in ns, ranges ``[start_ns, end_ns)``; ``schemas``: topic -> jsonschema.
     """
 
@@ -243,8 +244,7 @@ class ArchiveReader:
                 self.truncated, n = True, summary.statistics.message_count  # type: ignore[union-attr]
                 text = (f"{self.path}: truncated MCAP archive ({torn}); recovered {n} messages "
                         f"from its first {self._good_bytes} of {self._size} bytes")
-                warnings.warn(text, TruncatedArchiveWarning, stacklevel=3)
-                log.warning("%s", text)
+                warnings.warn(text, TruncatedArchiveWarning, stacklevel=3)  # (once: no log too)
         self._summary = summary
         self._header = None
         with contextlib.suppress(Exception):  # a torn header

@@ -62,6 +62,7 @@ from typing import Any
 import msgpack
 
 from radical_rt.conventions import t_to_ns
+from radical_rt.outpaths import output_file
 from replayer.archive import ArchiveError, ArchiveWriter
 from replayer.replay import ReplayError, open_session, tool_config
 from replayer.schemas import SCHEMAS, schema_name
@@ -301,7 +302,7 @@ def _eos_lost(data: bytes, veh: str, since: dict[tuple[str, str], int]) -> int:
 
 # -------------------------------------------------------------------------------------- CLI
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="archive to write")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", type=output_file, help="archive to write")
     p.add_argument("--vehicle", required=True,
                    help="vehicle name ([a-z0-9_-]+), or '*' for all vehicles (topics then "
                         "keep the vehicle: /<vehicle>/<topic>)")

@@ -29,6 +29,11 @@ Each archive ends with an end-of-stream marker on ``radical/<vehicle>/eos`` (doc
 that carries the messages sent per topic; messages put while a publisher had no matching
 subscriber, or whose put failed, are reported as not delivered.
 
+A node serving ``--vehicle`` is required: replay waits up to ``--wait-node`` (default 10 s) for
+its liveliness token ``radical/<vehicle>/alive/filter`` and fails with exit status 1, naming the
+vehicles the nodes there do serve, if none appears. ``--no-wait-node`` (or ``--wait-subscribers``,
+e.g. for a recorder alone) publishes without that check.
+
 Exit status: 0 done, 1 run-time failure (no node within the timeout, Zenoh error), 2 bad input
 (missing or unreadable archive, no input channel, bad option), 3 done but some messages were
 not delivered, 130 interrupted.
@@ -202,6 +207,17 @@ def wait_for_node(session: Any, vehicle: str, timeout: float,
     finally:
         sub.undeclare()
     return time.monotonic() - t0
+
+
+def served_vehicles(session: Any, timeout: float = 1.0) -> list[str]:
+    """Vehicles whose node liveliness token ``radical/<V>/alive/filter`` is alive now (sorted;
+    [] if the query fails)."""
+    try:
+        replies = session.liveliness().get("radical/*/alive/filter", timeout=timeout)
+        keys = {str(r.ok.key_expr) for r in replies if r.ok is not None}
+    except Exception:  # noqa: BLE001 - a diagnostic only
+        return []
+    return sorted(k.split("/")[1] for k in keys if k.count("/") == 3)
 
 
 def _wait_matching(pubs: dict[str, Any], keys: dict[str, str], timeout: float,
@@ -500,8 +516,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="Zenoh JSON5 file loaded first (endpoints and scouting still enforced)")
     p.add_argument("--wait-node", nargs="?", type=_wait_arg, const=DEFAULT_WAIT_S, default=None,
-                   metavar="TIMEOUT", help="wait (default 10 s) for the node's liveliness token "
-                   "and for subscribers on every published key before starting")
+                   metavar="TIMEOUT", help="wait up to TIMEOUT (default 10 s) for the node's "
+                   "liveliness token and for subscribers on every published key before starting. "
+                   "Without this option replay still requires a node serving --vehicle: it waits "
+                   "up to 10 s for its token and fails (exit 1) if none appears")
+    p.add_argument("--no-wait-node", action="store_true",
+                   help="publish without checking that a node serves --vehicle (e.g. to a "
+                        "recorder only; --wait-subscribers also skips the check)")
     p.add_argument("--wait-subscribers", nargs="?", type=_wait_arg, const=DEFAULT_WAIT_S,
                    default=None, metavar="TIMEOUT", help="wait (default 10 s) for subscribers on "
                    "every published key (e.g. a recorder), without requiring a node")
@@ -564,6 +585,10 @@ def run(args: argparse.Namespace) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, lambda *_: stop.set())
     hint = f"is `radical node --vehicle {args.vehicle}` running there?"
+    # a node serving the vehicle is required unless told otherwise (bounded default wait)
+    node_wait = args.wait_node
+    if node_wait is None and not args.no_wait_node and args.wait_subscribers is None:
+        node_wait = DEFAULT_WAIT_S
     try:
         zenoh.try_init_log_from_env()
         t_start = time.monotonic()
@@ -578,17 +603,20 @@ def run(args: argparse.Namespace) -> int:
             _err(f"{e} ({where}{within}); {hint}")
             return 1
         try:
-            if args.wait_node is not None:
-                left = max(t_start + args.wait_node - time.monotonic(), 0.1)
+            if node_wait is not None:
+                left = max(t_start + node_wait - time.monotonic(), 0.1)
                 try:
                     wait_for_node(session, args.vehicle, left, stop)
                 except ReplayError:
                     if stop.is_set():
                         print("radical replay: interrupted", file=sys.stderr)
                         return 130
+                    others = served_vehicles(session)
+                    seen = (f"; nodes there serve: {', '.join(others)}" if others
+                            else "; no node seen there")
                     _err(f"no filter node for vehicle {args.vehicle!r}: liveliness token "
-                         f"{node_token_key(args.vehicle)} not seen within {args.wait_node:g} s "
-                         f"({where}); {hint}")
+                         f"{node_token_key(args.vehicle)} not seen within {node_wait:g} s "
+                         f"({where}){seen}; {hint} (--no-wait-node publishes anyway)")
                     return 1
                 waited = time.monotonic() - t_start
                 print(f"radical replay: node {node_token_key(args.vehicle)} alive "

@@ -18,8 +18,9 @@ from radical_rt import zconfig
 from radical_rt.conventions import ARCSEC, DEG_PER_HR
 from radical_rt.flags import Flag
 
+# radical_rt.outpaths: the one output-path policy of every command (argparse types, no engine)
 ALLOWED_RADICAL = {"radical_rt.conventions", "radical_rt.paper_table", "radical_rt.flags",
-                   "radical_rt.zconfig", "radical_rt"}
+                   "radical_rt.zconfig", "radical_rt.outpaths", "radical_rt"}
 ALLOWED_REPLAYER = {"replayer.archive"}
 
 

@@ -131,6 +131,43 @@ def test_bump_add_and_scale(mn):
     assert r["ok"] and r["mode"] == e.table.active.bump_mode
 
 
+def test_bump_in_paper_units_both_ways(mn):
+    """Names with the paper unit (as set_params' bump_* names) in the request and the reply; the
+    bare group name is the contract's SI form and bumps exactly the same."""
+    from radical_rt.conventions import ARCSEC, DEG_PER_HR, PPM
+
+    e = mn.sp().engine
+    var0 = e.variances()
+    r = mn.cmd(cmd="bump", sigma={"b_deg_hr": [0.5] * 4, "du_arcsec": [20.0] * 4}, mode="add")
+    assert r["ok"], r
+    var1 = e.variances()
+    b, du = e.layout["b"], e.layout["du"]
+    np.testing.assert_allclose(var1[b], var0[b] + (0.5 * DEG_PER_HR) ** 2, rtol=1e-9)
+    np.testing.assert_allclose(var1[du], var0[du] + (20.0 * ARCSEC) ** 2, rtol=1e-9)
+    assert set(r["sigma"]) == {"b_deg_hr", "lam_ppm", "mu_ppm", "du_arcsec", "dv_arcsec",
+                               "phi2_arcsec"}
+    np.testing.assert_allclose(r["sigma"]["b_deg_hr"], np.sqrt(var1[b]) / DEG_PER_HR, rtol=1e-12)
+    np.testing.assert_allclose(r["sigma"]["lam_ppm"], np.array(e.sigmas()["lam"]) / PPM,
+                               rtol=1e-12)  # (the engine's lam states are not the contract's)
+    # the same bump in SI under the bare name: the same variances
+    mn.cmd(cmd="bump", sigma={"mu_ppm": [3.0] * 4}, mode="add")
+    var2 = e.variances()
+    mn.cmd(cmd="bump", sigma={"mu": [3.0 * PPM] * 4}, mode="add")
+    mu = e.layout["mu"]
+    np.testing.assert_allclose(var2[mu] - var1[mu], e.variances()[mu] - var2[mu], rtol=1e-9)
+
+
+@pytest.mark.parametrize("request_, match", [
+    ({"sigma": {"b_deg_hr": [0.1] * 4, "b": [1e-7] * 4}}, "given twice"),
+    ({"sigma": {"b_deg_hr": [4000.0] * 4}}, "numbers in [0, 3600] (deg/hr)"),
+    ({"sigma": {"phi2_arcsec": [1.0] * 4}}, "list of 3"),
+    ({"sigma": {"b_rad_s": [1e-7] * 4}}, "b_deg_hr, lam_ppm"),
+    ({"sigma": {"b": [1.0] * 4}}, "(SI)"),
+])
+def test_bump_paper_units_invalid(mn, request_, match):
+    assert_unchanged(mn, {"cmd": "bump", **request_}, match)
+
+
 @pytest.mark.parametrize("request_, match", [
     ({"sigma": {"bias": [1e-7] * 4}}, "unknown group 'bias'"),
     ({"sigma": {"b": [1e-7] * 3}}, "list of 4"),

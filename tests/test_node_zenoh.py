@@ -210,12 +210,22 @@ def test_kill9_and_resume(archives, batch_ref, tmp_path):  # noqa: F811
     (["--vehicle", "v", "--config", "/nonexistent/p.toml"], "no such file"),
     (["--vehicle", "v", "--checkpoint-every", "0"], "--checkpoint-every must be > 0"),
     (["--vehicle", "v", "--resume-bump"], "--resume-bump needs --resume"),
-    (["--vehicle", "v", "--checkpoint", "/nonexistent/dir/c.ckpt"], "directory does not exist"),
 ])
 def test_cli_errors_are_one_line(args, match, capsys):
     assert radical_main(["node", *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("radical node: ") and match in err[0], err
+
+
+def test_cli_checkpoint_path_refused_while_parsing(tmp_path, capsys):
+    """The one output-path policy (radical_rt.outpaths): a checkpoint path that cannot be created
+    is a usage error before the node starts (missing parents would be created)."""
+    (tmp_path / "f").write_text("")
+    with pytest.raises(SystemExit) as exc:
+        radical_main(["node", "--vehicle", "v", "--checkpoint", str(tmp_path / "f" / "c.ckpt")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "--checkpoint" in err[-1] and "in the way" in err[-1], err
 
 
 def test_cli_duration_and_packets(tmp_path, capsys):

@@ -88,12 +88,24 @@ def test_parse_topics():
             parse_topics(bad)
 
 
+@pytest.mark.parametrize("out, needle", [("{tmp}/f/x.mcap", "in the way"),
+                                         ("{tmp}", "is a directory")])
+def test_cli_bad_output_refused_while_parsing(out, needle, tmp_path, capsys):
+    """Output paths follow the one policy of radical_rt.outpaths: missing parents are created,
+    an impossible path is a usage error before anything runs."""
+    (tmp_path / "f").write_text("")
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["record", "--vehicle", "v1", "-o", out.replace("{tmp}", str(tmp_path))])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "error:" in err[-1] and needle in err[-1] and "Traceback" not in "".join(err), err
+    assert not (tmp_path / "x.mcap").exists()
+
+
 @pytest.mark.parametrize("args, needle", [
-    (["--vehicle", "v1", "-o", "/nonexistent/dir/x.mcap"], "no directory"),
     (["--vehicle", "V 1", "-o", "{tmp}/x.mcap"], "must match"),
     (["--vehicle", "v1", "-o", "{tmp}/x.mcap", "--topics", "alive"], "not recorded"),
     (["--vehicle", "v1", "-o", "{tmp}/x.mcap", "--duration", "-1"], "--duration"),
-    (["--vehicle", "v1", "-o", "{tmp}", ], "is a directory"),
     (["--vehicle", "v1", "-o", "{tmp}/x.mcap", "--connect", "udp/127.0.0.1:7448"], "loopback"),
 ])
 def test_cli_bad_inputs_one_line_exit_2(args, needle, tmp_path, capsys):

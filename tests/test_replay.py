@@ -564,6 +564,33 @@ def test_connect_to_nothing_clear_error(archives, capsys, wait):
 
 
 @pytest.mark.zenoh
+def test_default_requires_a_node_for_the_vehicle(archives, capsys, monkeypatch):
+    """Issue #21: a node serving another vehicle is not enough. By default replay waits (here
+    1 s instead of 10) for the vehicle's token and fails in one line naming what is served;
+    with the right vehicle it proceeds; --no-wait-node skips the check."""
+    from replayer import replay as rp
+
+    monkeypatch.setattr(rp, "DEFAULT_WAIT_S", 1.0)
+    e = ep()
+    with session(listen=e) as node:
+        node.declare_subscriber("radical/**", lambda s: None)
+        tok = node.liveliness().declare_token("radical/v1/alive/filter")
+        args = [str(archives["a"]), "--connect", e, "--fast", "--end", "2", "--no-progress",
+                "--linger", "0.2"]
+        t0 = time.monotonic()
+        rc = cli_main(["replay", *args, "--vehicle", "v2"])
+        dt = time.monotonic() - t0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 1 and len(err) == 1, err
+        assert "no filter node for vehicle 'v2'" in err[0] and "serve: v1" in err[0], err
+        assert 0.9 <= dt < 6.0
+        assert cli_main(["replay", *args, "--vehicle", "v1"]) == 0, capsys.readouterr().err
+        assert "alive" in capsys.readouterr().err
+        assert cli_main(["replay", *args, "--vehicle", "v2", "--no-wait-node"]) == 0
+        tok.undeclare()
+
+
+@pytest.mark.zenoh
 def test_wait_node_proceeds_when_token_appears(archives, capsys):
     """A fake node (token declared 0.7 s late, subscribers on the four inputs): replay waits,
     then publishes everything in the window."""
@@ -596,7 +623,7 @@ def test_wait_node_proceeds_when_token_appears(archives, capsys):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_cli_signal_stops_replay_with_summary(archives, sig):
     proc = subprocess.Popen(cli("replay", str(archives["a"]), "--vehicle", VEH, "--listen", ep(),
-                                "--json"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                "--no-wait-node", "--json"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=ROOT)
     try:
         time.sleep(2.0)

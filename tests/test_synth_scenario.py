@@ -140,7 +140,9 @@ FORBIDDEN = ("radical_rt.model", "radical_rt.filter", "radical_rt.params", "radi
 
 
 def test_simulator_does_not_import_the_filter():
-    allowed = {"radical_rt", "radical_rt.conventions", "radical_rt.geometry", "radical_rt.rotation"}
+    # radical_rt.outpaths: the command line's output-path policy (synth -o), no filter code
+    allowed = {"radical_rt", "radical_rt.conventions", "radical_rt.geometry", "radical_rt.rotation",
+               "radical_rt.outpaths"}
     for path in SYNTH_DIR.glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             names = []

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from ..outpaths import output_file
 from ..params import ParamError, ParamTable
 from . import analysis
 from .constraints import Pointing, check
@@ -36,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--warm", nargs="?", const="2006216", metavar="PRIOR",
                    help="after a warm start + bump following PRIOR (default 2006216)")
     p.add_argument("--config", metavar="PARAMS.toml", help="engine parameter overrides")
-    p.add_argument("--json", metavar="FILE", help="write the predicted σ and histories here")
+    p.add_argument("--json", metavar="FILE", type=output_file, help="write the predicted σ and histories here")
     p.add_argument("--target-scale", type=float, default=1.0, metavar="F",
                    help="targets = F × the paper's final σ (default 1)")
     p.add_argument("--record-dt", type=float, default=10.0, metavar="S",
@@ -49,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="trackers' Sun exclusion half-cone; blinded samples are dropped")
     p.add_argument("--optimize", action="store_true",
                    help="search the maneuver family for the shortest one meeting the targets")
-    p.add_argument("--out", metavar="BEST.toml", help="--optimize: write the best maneuver here")
+    p.add_argument("--out", metavar="BEST.toml", type=output_file, help="--optimize: write the best maneuver here")
     p.add_argument("--max-duration", type=float, default=7200.0, metavar="S",
                    help="--optimize: longest acceptable maneuver (default 7200 s)")
     p.add_argument("--groups", metavar="G1,G2", help="--optimize: only these groups' targets "

@@ -16,6 +16,7 @@ import argparse
 import json
 import sys
 
+from radical_rt.outpaths import output_file
 from replayer.archive import ArchiveError
 
 from .api import synthesize
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `radical synth`."""
     parser.add_argument("scenario", nargs="?", metavar="SCENARIO",
                         help="built-in scenario name or TOML scenario file")
-    parser.add_argument("-o", "--output", metavar="OUT.mcap", help="output archive")
+    parser.add_argument("-o", "--output", metavar="OUT.mcap", type=output_file, help="output archive")
     parser.add_argument("--seed", type=int, help="override the scenario's seed")
     parser.add_argument("--duration", type=float, metavar="S", help="override the run length (s)")
     parser.add_argument("--vehicle", metavar="V", help="override the vehicle name")
