@@ -35,10 +35,12 @@ $(JS_STAMP): tests/js/package.json tests/js/package-lock.json
 jsdeps: $(JS_STAMP)
 
 test: $(STAMP) sysdeps jsdeps
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
 	$(BIN)/ruff check radical_rt replayer monitors perf studies tests
+	$(BIN)/lint-imports
 	$(BIN)/mypy
 
 bench: $(STAMP)
