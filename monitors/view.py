@@ -246,3 +246,42 @@ def tlm_row(msg: dict[str, Any], shape: dict[str, int]) -> dict[str, float]:
         for i, v in enumerate(group_paper(g, sig.get(g))[:width]):
             row[f"{g}{i}_s"] = v if v > 0 else math.nan
     return row
+
+
+class StreamAxis:
+    """One time axis for the live plots of a vehicle whose streams may overlap in bus time: the
+    first stream keeps its bus time t [s]; each later stream is placed ``pad_s`` after the
+    largest x drawn so far (the live counterpart of monitors.report_ops.common_axis). A packet's
+    stream is its ``stream`` field, or else a new stream starts at a backwards step of t."""
+
+    def __init__(self, pad_s: float = 30.0) -> None:
+        self.pad_s = pad_s
+        self.start: dict[int, tuple[float, float]] = {}  # stream → (x of its start, its first t)
+        self.k: int | None = None  # the current stream
+        self.last_t = -math.inf
+        self.x_max = -math.inf
+
+    def x(self, t: float, stream: Any = None) -> float:
+        """x [s] of the tlm packet at bus time t of ``stream`` (None: not given); a new stream
+        index (or a backwards step without one) starts a new segment."""
+        if not math.isfinite(t):
+            return t
+        k = stream if isinstance(stream, int) else None
+        if k is None:
+            k = 0 if self.k is None else self.k + (1 if t < self.last_t else 0)
+        if k not in self.start:
+            x0 = t if self.k is None else self.x_max + self.pad_s
+            self.start[k] = (x0, t)
+        self.k, self.last_t = k, t
+        x = self.at(t, k)
+        self.x_max = max(self.x_max, x)
+        return x
+
+    def at(self, t: float, stream: Any = None) -> float:
+        """x [s] of time t in a stream already seen (the current one when not given or unknown):
+        for messages that must not start a segment (fault messages)."""
+        k = stream if isinstance(stream, int) and stream in self.start else self.k
+        if k is None:
+            return t
+        x0, t0 = self.start[k]
+        return x0 + (t - t0)

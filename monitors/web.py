@@ -34,6 +34,7 @@ from monitors.common import FLAG_BITS, excitation_text, flag_label
 from monitors.live import TOPICS, LatestStore, pick_vehicle
 from monitors.view import (
     STALE_S,
+    StreamAxis,
     clock_lines,
     column_names,
     counter_lines,
@@ -82,6 +83,7 @@ class Hub:
         self.flag_total: dict[str, int] = {}
         self._seen: dict[str, int] = {}
         self._seen_fault: dict[str, int] = {}
+        self.axis: dict[str, StreamAxis] = {}  # streams one after the other on the plots' x
 
     def poll(self) -> None:
         """Turn every tlm/large packet and fault message received since the last poll into rows."""
@@ -94,15 +96,18 @@ class Hub:
                         self.shape[v] = shape
                         self.rows[v] = deque(maxlen=self.keep)
                         self.total[v] = 0
-                    self.rows[v].append(tlm_row(msg, shape))
+                        self.axis[v] = StreamAxis()
+                    row = tlm_row(msg, shape)
+                    row["t"] = t = self.axis[v].x(row["t"], msg.get("stream"))
+                    self.rows[v].append(row)
                     self.total[v] += 1
-                    t = float(msg.get("t", math.nan))
                     self._add_flags(v, _flag_rows(t, msg.get("flags", 0), "tlm"))
                 faults = self.store.faults(v, after=self._seen_fault.get(v, 0))
+                axis = self.axis.get(v) or StreamAxis()
                 for n, _recv, m in faults:
                     self._seen_fault[v] = n
-                    self._add_flags(v, _flag_rows(float(m.get("t", math.nan)), m.get("flags", 0),
-                                                  "fault"))
+                    t = axis.at(float(m.get("t", math.nan)), m.get("stream"))
+                    self._add_flags(v, _flag_rows(t, m.get("flags", 0), "fault"))
 
     def _add_flags(self, v: str, rows: list[tuple[float, str, str]]) -> None:
         d = self.flags.setdefault(v, deque(maxlen=self.keep * 4))

@@ -61,7 +61,7 @@ def _fig(title: str, y_label: str, log: bool = False, height: int = 240, x_range
         kw["y_range"] = y_range
     f = figure(title=title, height=height, sizing_mode="stretch_width", output_backend="canvas",
                tools="pan,wheel_zoom,box_zoom,reset,save", y_axis_type="log" if log else "auto",
-               x_axis_label="bus time [s]", y_axis_label=y_label, **kw)
+               x_axis_label="bus time [s] (a later stream after the previous one)", y_axis_label=y_label, **kw)
     f.title.text_font_size = "11px"  # type: ignore[union-attr]
     return f
 

@@ -132,6 +132,35 @@ def test_hub_keeps_every_packet_between_polls():
     assert hub.rows_since("v", 50) == ([], 50)  # nothing new, nothing repeated
 
 
+def test_hub_draws_overlapping_streams_apart():
+    """Issue #21: two streams whose bus times overlap (both start at 0) are drawn one after the
+    other on one axis, by the packets' ``stream`` field or, without it, at the backwards step;
+    a fault message lands on its own stream's segment."""
+    pytest.importorskip("bokeh")
+    from monitors.view import StreamAxis
+    from monitors.web import Hub
+
+    for tagged in (True, False):
+        s = LatestStore(clock=Clock(), history_keep=100)
+        hub = Hub(s, keep=100)
+        for k, (stream, t) in enumerate([(0, 0.0), (0, 10.0), (0, 20.0), (1, 5.0), (1, 15.0)]):
+            m = large_packet(seq=k, t=t)
+            if tagged:
+                m["stream"] = stream
+            s.put("v", "tlm/large", msgpack.packb(m))
+        s.put("v", "fault", {"t": 6.0, "flags": int(Flag.PARITY_ALARM), "set": ["PARITY_ALARM"],
+                             "cleared": [], **({"stream": 1} if tagged else {})})
+        hub.poll()
+        xs = [r["t"] for r in hub.rows_since("v", 0)[0]]
+        assert xs == [0.0, 10.0, 20.0, 50.0, 60.0], (tagged, xs)  # 20 + 30 s pad, then +10
+        fl, _n = hub.flags_since("v", 0)
+        assert [f[0] for f in fl if f[2] == "fault"] == [51.0], (tagged, fl)
+    ax = StreamAxis(pad_s=5.0)  # a stream seen again keeps its segment; NaN leaves no trace
+    assert [ax.x(t, k) for t, k in [(100.0, 0), (3.0, 1), (math.nan, 1), (4.0, 1)]] == [
+        100.0, 105.0, pytest.approx(math.nan, nan_ok=True), 106.0]
+    assert ax.at(101.0, 0) == 101.0 and ax.at(101.0, 7) == 203.0
+
+
 def test_robust_range_clips_the_transient_and_current_values_table():
     pytest.importorskip("bokeh")
     import numpy as np
