@@ -862,7 +862,8 @@ def make_report(paths: list[str], out_dir: str | Path, labels: str | None = None
             figs.append(("fig8.png", "Figure 8: ST2 misalignment estimates and σ (with ST2 "
                          "baseplate temperature), archives side by side"))
         from monitors.report_ops import load_ops
-        from monitors.report_ops_fig import figure_ops, write_html
+        from monitors.report_ops_fig import figure_ops
+        from monitors.report_ops_html import write_html
 
         ops = [load_ops(d.path, d.label, max_points) for d in data]
         for o in ops:

@@ -5,8 +5,8 @@ fetched at run time). Streams are told apart by the packet's ``stream`` field wh
 by emission order (``seq``, which runs on across streams; MCAP log-time order interleaves
 overlapping streams): a backwards step of the bus time ``t`` starts a new stream. Streams are drawn on
 one axis, each offset to start after the previous one's end (x = elapsed minutes), with a dashed
-boundary marker labelled warm (stream > 0 of a multi-stream run starts from the previous
-estimate) or cold (stream 0).
+boundary marker labelled by how the stream started (the diag messages' ``stream_info``: cold /
+warm / resume, bump, first bus time; without it guessed: stream 0 cold, later ones warm).
 """
 
 from __future__ import annotations
@@ -39,7 +39,8 @@ class OpsData:
     nis: dict[str, np.ndarray] = field(default_factory=dict)  # kind -> (N,) NIS, dof
     flags: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     att_err: np.ndarray | None = None  # (N, 3) arcsec vs /truth/attitude
-    fault_x: list[tuple[float, str]] = field(default_factory=list)
+    fault_x: list[tuple[float, str]] = field(default_factory=list)  # (x min, flags set)
+    stream_info: dict[int, dict[str, Any]] = field(default_factory=dict)  # diag stream_info
 
 
 def _num(v: Any, default: float = math.nan) -> float:
@@ -121,6 +122,7 @@ def load_ops(path: str, label: str, max_points: int = 1500) -> OpsData:
                     msgs.append(m)
         t_true, q_true = _truth_attitude(reader)
         faults = [(msgpack.unpackb(d, raw=False), ns) for _tp, ns, d in reader.iter_raw("/fault")]
+        info = _stream_info(reader)
     # MCAP orders by log time, which interleaves streams whose bus times overlap; the packet
     # counter seq runs on across streams, so seq order is emission order
     if all(isinstance(m.get("seq"), int) for m in msgs):
@@ -149,7 +151,7 @@ def load_ops(path: str, label: str, max_points: int = 1500) -> OpsData:
             nis[kind] = np.array([_nis(v) for v in vals])
     flags = np.array([int(m.get("flags", 0) or 0) for m in msgs], dtype=np.int64)
     d = OpsData(label=label, t=t, stream=stream, x=x, boundaries=bounds, q=q, omega=om, lat=lat,
-                clk=clk, nis=nis, flags=flags)
+                clk=clk, nis=nis, flags=flags, stream_info=info)
     if len(t_true) and np.isfinite(q).all():
         d.att_err = attitude_error(q, t, t_true, q_true)
     for f, ns in faults if len(t) else []:
@@ -178,4 +180,66 @@ def chi2_bounds(dof: int, p: float = 0.95) -> tuple[float, float]:
 
 
 def stream_kind(k: int) -> str:
+    """How stream k most likely started when the archive does not say (no diag stream_info)."""
     return "cold start" if k == 0 else "warm start"
+
+
+def _stream_info(reader: Any) -> dict[int, dict[str, Any]]:
+    """The first ``stream_info`` of each stream index found on /diag (docs/contract_extensions.md,
+    "Streams"): {index: {"start", "bump", "t_bus_first", ...}}."""
+    out: dict[int, dict[str, Any]] = {}
+    if not reader.message_counts.get("/diag"):
+        return out
+    for _tp, _ns, data in reader.iter_raw("/diag"):
+        m = msgpack.unpackb(data, raw=False, strict_map_key=False)
+        si = m.get("stream_info") if isinstance(m, dict) else None
+        if isinstance(si, dict) and isinstance(si.get("index"), int):
+            k = si["index"]
+            if k not in out or (out[k].get("t_bus_first") is None
+                                and si.get("t_bus_first") is not None):
+                out[k] = si
+    return out
+
+
+def stream_label(d: OpsData, k: int) -> str:
+    """Boundary label of stream k: how it started (cold / warm / resume), the bump applied and its
+    first bus time, from the archive's diag ``stream_info``; else :func:`stream_kind`'s guess."""
+    si = d.stream_info.get(k)
+    if not si or not isinstance(si.get("start"), str):
+        return f"stream {k}: {stream_kind(k)} (guessed: no stream_info)"
+    bump = si.get("bump")
+    parts = [f"stream {k}: {si['start']} start"]
+    if isinstance(bump, dict):
+        parts.append(f"bump {bump.get('mode', '?')}")
+    if isinstance(si.get("t_bus_first"), int | float):
+        parts.append(f"first t_bus {float(si['t_bus_first']):.1f} s")
+    return ", ".join(parts)
+
+
+def fault_kind(name: str) -> str:
+    """Marker class of a fault message by the flags it set: "isolation" (a GYRO_x_FAILED), "clear"
+    (only cleared flags) or "fault"."""
+    if "GYRO_" in name and "_FAILED" in name:
+        return "isolation"
+    return "clear" if name == "clear" else "fault"
+
+
+def markers(d: OpsData) -> list[tuple[float, str, str]]:
+    """Every vertical marker of the ops figures, (x min, kind, label); kind: "boundary",
+    "isolation", "fault" or "clear". Shared by the PNG and report.html."""
+    out = [(xb, "boundary", stream_label(d, k)) for xb, k in d.boundaries]
+    out += [(xf, fault_kind(name), name) for xf, name in d.fault_x]
+    return out
+
+
+def euler_321(q: np.ndarray) -> np.ndarray:
+    """3-2-1 (yaw about z, pitch about y', roll about x'') angles in degrees, (N, 3) as [yaw,
+    pitch, roll], of the rotation q_body_from_inertial (scalar last); NaN rows stay NaN."""
+    from scipy.spatial.transform import Rotation as R
+
+    q = np.asarray(q, float).reshape(-1, 4)
+    out = np.full((len(q), 3), np.nan)
+    ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(q, axis=1) > 0)
+    if ok.any():
+        out[ok] = R.from_quat(q[ok]).as_euler("ZYX", degrees=True)
+    return out

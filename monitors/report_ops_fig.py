@@ -1,27 +1,31 @@
 """Figures of :mod:`monitors.report_ops`: ``ops_<label>.png`` (Matplotlib) and ``report.html``
-(Bokeh, inline resources). x axis: streams on one common axis (minutes), dashed boundaries."""
+(Bokeh, inline resources: :mod:`monitors.report_ops_html`). x axis: streams on one common axis (minutes), dashed boundaries."""
 
 from __future__ import annotations
 
-import html as _html
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from monitors.common import FLAG_BITS
-from monitors.report_ops import OpsData, chi2_bounds, stream_kind
+from monitors.report_ops import OpsData, chi2_bounds, markers
 
 DOF = {"st1": 3, "st2": 3, "parity": 1}
 
 
-def _marks(ax: Any, d: OpsData) -> None:
-    for xb, k in d.boundaries:
-        ax.axvline(xb, color="k", ls="--", lw=0.9, alpha=0.7)
-        ax.text(xb, 1.0, f" stream {k} ({stream_kind(k)})", transform=ax.get_xaxis_transform(),
-                fontsize=6, va="bottom")
-    for xf, _name in d.fault_x:
-        ax.axvline(xf, color="tab:red", lw=0.6, alpha=0.5)
+#: Marker style per kind of :func:`monitors.report_ops.markers` (colour, dash); PNG and HTML.
+MARK_STYLE = {"boundary": ("black", "dashed"), "isolation": ("#d62728", "solid"),
+              "fault": ("#ff7f0e", "solid"), "clear": ("#2ca02c", "dotted")}
+
+
+def _marks(ax: Any, d: OpsData, text: bool = False) -> None:
+    for x, kind, label in markers(d):
+        color, dash = MARK_STYLE[kind]
+        ax.axvline(x, color=color, ls=dash, lw=0.9 if kind == "boundary" else 0.6, alpha=0.7)
+        if text and kind == "boundary":
+            ax.text(x, 1.0, " " + label, transform=ax.get_xaxis_transform(), fontsize=6,
+                    va="bottom")
 
 
 def _per_stream(ax: Any, d: OpsData, y: np.ndarray, labels: list[str], **kw: Any) -> None:
@@ -76,8 +80,8 @@ def figure_ops(d: OpsData, path: Path) -> None:
     axes[6].set_yticks([b for b, _ in FLAG_BITS], [n for _, n in FLAG_BITS], fontsize=5)
     axes[6].set_ylabel("flags")
     axes[6].set_xlabel("time on the common stream axis [min]")
-    for ax in axes:
-        _marks(ax, d)
+    for i, ax in enumerate(axes):
+        _marks(ax, d, text=i == 0)
         ax.grid(True, alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=6, loc="upper right", ncol=4)
@@ -85,45 +89,3 @@ def figure_ops(d: OpsData, path: Path) -> None:
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     fig.savefig(path, dpi=80)
     plt.close(fig)
-
-
-def write_html(out: Path, ops: list[OpsData], tables_html: str) -> Path:
-    """report.html: one interactive page (Bokeh, resources inline) plus the tables."""
-    from bokeh.embed import file_html
-    from bokeh.layouts import column
-    from bokeh.models import Div, Span
-    from bokeh.plotting import figure
-    from bokeh.resources import INLINE
-
-    items: list[Any] = [Div(text="<h1>RADICAL-RT operations report</h1>" + tables_html)]
-    for d in ops:
-        panels = [("attitude quaternion", d.q, ["q1", "q2", "q3", "q4"]),
-                  ("body rate [deg/s]", d.omega, ["x", "y", "z"]),
-                  ("tracker latency [ms]", d.lat, ["estimate", "sigma"]),
-                  ("SIRU clock", d.clk, ["freq ppm", "locked", "repeated", "missing"])]
-        if d.att_err is not None:
-            panels.insert(2, ("attitude error [arcsec]", d.att_err, ["x", "y", "z"]))
-        x_range = None
-        for title, y, names in panels:
-            p = figure(title=f"{d.label}: {title}", width=1100, height=220,
-                       x_range=x_range or (float(d.x.min()), float(d.x.max())))
-            x_range = p.x_range
-            for i, nm in enumerate(names):
-                for _xb, k in d.boundaries:
-                    m = d.stream == k
-                    p.line(d.x[m], np.nan_to_num(y[m, i], nan=0.0), legend_label=nm,
-                           color=["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"][i % 4])
-            for xb, _k in d.boundaries:
-                p.add_layout(Span(location=xb, dimension="height", line_dash="dashed"))
-            p.xaxis.axis_label = "min (streams on a common axis; dashed: stream boundary)"
-            items.append(p)
-        items.append(Div(text="<p>" + ", ".join(
-            f"stream {k}: {stream_kind(k)} at {xb:.2f} min" for xb, k in d.boundaries) + "</p>"))
-    doc = file_html(column(*items), INLINE, "RADICAL-RT operations report")
-    path = out / "report.html"
-    path.write_text(doc, encoding="utf-8")
-    return path
-
-
-def escape(s: str) -> str:
-    return _html.escape(s)
