@@ -129,11 +129,16 @@ def test_packet_presets_parse(tmp_path):
         live.packet_file("no-such-preset-or-file", tmp_path)
 
 
-def test_node_timing_out_needs_an_existing_directory(tmp_path, capsys):
+def test_node_timing_out_refuses_an_impossible_path_before_starting(tmp_path, capsys):
+    """The output-path policy (radical_rt.outpaths): a missing directory is created, a path that
+    cannot be one (a file in the way) is a usage error at parse time, before the node starts."""
     from radical_rt.cli import main
-    rc = main(["node", "--vehicle", "v", "--timing-out", str(tmp_path / "missing" / "t.npz")])
-    assert rc == 2
-    assert "--timing-out" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(SystemExit) as exc:
+        main(["node", "--vehicle", "v", "--timing-out", str(tmp_path / "afile" / "t.npz")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--timing-out" in err and "a file is in the way" in err
 
 
 # ------------------------------------------------------------------------------------ CI quick profile
