@@ -204,6 +204,7 @@ def tlm_columns(shape: dict[str, int]) -> list[str]:
     for k in ("st1", "st2"):
         for a in "xyz":
             cols += [f"{k}_{a}", f"{k}_{a}_s", f"{k}_{a}_sn"]
+    cols += ["st1_nis", "st2_nis", "par_nis"]
     for g in ORDER:
         for i in range(3 if g == "phi2" else n):
             cols += [f"{g}{i}", f"{g}{i}_s"]
@@ -234,6 +235,8 @@ def tlm_row(msg: dict[str, Any], shape: dict[str, int]) -> dict[str, float]:
     for k, names in (("parity", [f"par{i}" for i in range(shape["parity"])]),
                      ("st1", [f"st1_{a}" for a in "xyz"]), ("st2", [f"st2_{a}" for a in "xyz"])):
         r = _map(res.get(k))
+        nis = _num(r.get("nis"))
+        row["par_nis" if k == "parity" else f"{k}_nis"] = nis if nis > 0 else math.nan  # (log axis)
         for name, iv, sv in zip(names, _vec(r.get("innov")), _vec(r.get("sigma")), strict=False):
             row[name] = iv / ARCSEC
             row[f"{name}_s"], row[f"{name}_sn"] = sv / ARCSEC, -sv / ARCSEC

@@ -129,7 +129,7 @@ def build_plots(shape: dict[str, int], keep: int) -> tuple[Any, Any, Any, Any, d
     tab1 = TabPanel(title="attitude & residuals", child=column(
         gridplot(grid, sizing_mode="stretch_width", toolbar_location="right"), flags_fig,
         sizing_mode="stretch_width"))
-    tabs = [tab1, TabPanel(title="attitude, rates, latency", child=_motion_panel(src, x)),
+    tabs = [tab1, TabPanel(title="attitude, rates, latency", child=_motion_panel(src, x, shape["parity"])),
             TabPanel(title="parameters", child=_param_panel(src, shape, x))]
     fc = _fig("SIRU clock frequency offset", "ppm", x_range=x)
     fc.line("t", "clk_ppm", source=src, line_width=1.5, legend_label="freq offset")
@@ -146,8 +146,8 @@ def build_plots(shape: dict[str, int], keep: int) -> tuple[Any, Any, Any, Any, d
     return Tabs(tabs=tabs, sizing_mode="stretch_width", name="tabs"), src, fsrc, counters, ranges
 
 
-def _motion_panel(src: Any, x_range: Any) -> Any:
-    """Euler angles [deg], body rates [deg/s] and the tracker latency estimate ± 1σ [ms]."""
+def _motion_panel(src: Any, x_range: Any, parity_dof: int) -> Any:
+    """Euler angles [deg], body rates [deg/s], the tracker latency estimate ± 1σ [ms] and the NIS."""
     from bokeh.layouts import column, row
 
     fe = _fig("attitude, Euler 3-2-1 (body from inertial)", "deg", x_range=x_range)
@@ -160,9 +160,30 @@ def _motion_panel(src: Any, x_range: Any) -> Any:
     fl.line("t", "lat_ms", source=src, line_width=1.5, legend_label="estimate")
     fl.line("t", "lat_hi", source=src, line_width=1, line_dash="dashed", legend_label="± 1σ")
     fl.line("t", "lat_lo", source=src, line_width=1, line_dash="dashed", legend_label="± 1σ")
-    for f in (fe, fw, fl):
+    fn = _nis_fig(src, x_range, parity_dof)
+    for f in (fe, fw, fl, fn):
         _legend(f)
-    return column(row(fe, fw, sizing_mode="stretch_width"), fl, sizing_mode="stretch_width")
+    return column(row(fe, fw, sizing_mode="stretch_width"),
+                  row(fl, fn, sizing_mode="stretch_width"), sizing_mode="stretch_width")
+
+
+def _nis_fig(src: Any, x_range: Any, parity_dof: int) -> Any:
+    """NIS of each residual kind (log axis) with its two-sided 95 % χ² bounds (dotted; dof 3
+    for a tracker, ``parity_dof`` for the parity residual; monitors.report_ops.chi2_bounds)."""
+    from bokeh.models import Span
+
+    from monitors.report_ops import chi2_bounds
+
+    fn = _fig("NIS with 95 % χ² bounds (dotted)", "NIS", x_range=x_range, log=True)
+    fn.name = "nis"
+    for i, (k, dof) in enumerate((("st1", 3), ("st2", 3), ("par", parity_dof))):
+        if dof <= 0:
+            continue
+        fn.scatter("t", f"{k}_nis", source=src, color=COLORS[i], size=3, legend_label=k)
+        for b in chi2_bounds(dof):
+            fn.add_layout(Span(location=b, dimension="width", line_dash="dotted",
+                               line_color=COLORS[i], name=f"chi2_{k}"))
+    return fn
 
 
 def _param_panel(src: Any, shape: dict[str, int], x_range: Any) -> Any:

@@ -161,6 +161,40 @@ def test_hub_draws_overlapping_streams_apart():
     assert ax.at(101.0, 0) == 101.0 and ax.at(101.0, 7) == 203.0
 
 
+def test_web_nis_plot_with_chi2_bounds():
+    """Issue #21: the live page plots each residual kind's NIS with its 95 % χ² bounds (dof 3 per
+    tracker, the parity residual's dimension for parity); a missing NIS stays NaN."""
+    pytest.importorskip("bokeh")
+    from bokeh.document import Document
+    from bokeh.models import Span
+    from scipy.stats import chi2
+
+    from monitors.view import tlm_row, tlm_shape
+    from monitors.web import Hub, make_document_factory
+
+    pkt = large_packet(seq=1, t=100.0)
+    row = tlm_row(pkt, tlm_shape(pkt))
+    assert (row["st1_nis"], row["par_nis"]) == (2.3, 1.9) and math.isnan(row["st2_nis"])
+    clk = Clock()
+    s = LatestStore(clock=clk)
+    doc = Document()
+    make_document_factory(Hub(s), "v", 250, stale_s=2.0)(doc)
+    (cb,) = list(doc.session_callbacks)
+    for k in range(3):
+        s.put("v", "tlm/large", large_packet(seq=k, t=100.0 + k))
+        clk.now += 0.3
+        cb.callback()
+    fig = doc.get_model_by_name("nis")
+    spans = {sp.name: [] for sp in fig.center if isinstance(sp, Span)}
+    for sp in fig.center:
+        if isinstance(sp, Span):
+            spans[sp.name].append(sp.location)
+    lo3, hi3 = chi2.ppf(0.025, 3), chi2.ppf(0.975, 3)
+    assert sorted(spans["chi2_st1"]) == pytest.approx([lo3, hi3]) == sorted(spans["chi2_st2"])
+    assert sorted(spans["chi2_par"]) == pytest.approx([chi2.ppf(0.025, 1), chi2.ppf(0.975, 1)])
+    assert list(doc.get_model_by_name("tlm").data["st1_nis"]) == [2.3, 2.3, 2.3]
+
+
 def test_robust_range_clips_the_transient_and_current_values_table():
     pytest.importorskip("bokeh")
     import numpy as np
