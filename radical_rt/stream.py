@@ -146,7 +146,7 @@ class StreamProcessor(StreamGuards):
         t = self.t_max
         if t > -math.inf:
             self._span_open = False
-            self.streams.seen(t, t)
+            self.streams.seen(t)
 
     def _check_time(self, topic: str, t: float) -> None:
         ss = self._tq.ss
@@ -287,7 +287,7 @@ class StreamProcessor(StreamGuards):
         if source is not None:
             log.source = source
         if not self._span_open:
-            log.seen(self.t_max, self.t_max)
+            log.seen(self.t_max)
         if next_start is not None:
             log.end(self.engine)
             self.clock.reset()

@@ -38,23 +38,21 @@ class StreamLog:
         self.done: list[dict[str, Any]] = []  # ended streams, in order
         self.begin("cold", None)
 
-    def begin(self, start: str, bump: dict[str, Any] | None, source: str | None = None) -> None:
+    def begin(self, start: str, bump: dict[str, Any] | None) -> None:
         """Open the current stream. start: "cold" | "warm" | "resume"; bump: {"mode": str,
-        "sigma": {group: [1σ, SI]}} applied at the start, or None; source: where its input comes
-        from (archive path, replay source), if known."""
-        self.start, self.bump, self.source = start, bump, source
+        "sigma": {group: [1σ, SI]}} applied at the start, or None. Its ``source`` (archive path,
+        replay source) is set by the caller once known."""
+        self.start, self.bump, self.source = start, bump, None
         self.t_first = self.t_last = math.nan  # bus-time span of the stream's inputs [s]
 
-    def seen(self, t_first: float, t_last: float) -> None:
-        """Inputs reached bus time t_last [s]; t_first: the stream's first input time [s]."""
-        if self.t_first != self.t_first:  # NaN: the first input of the stream
-            self.t_first = t_first
-        self.t_last = t_last
+    def seen(self, t: float) -> None:
+        """The stream's inputs reached bus time t [s] (the first call opens its span)."""
+        if math.isnan(self.t_first):
+            self.t_first = t
+        self.t_last = t
 
-    def end(self, engine: Any, source: str | None = None) -> None:
+    def end(self, engine: Any) -> None:
         """Close the current stream with the engine's end state; the next one is index + 1."""
-        if source is not None:
-            self.source = source
         self.done.append(self.record(engine))
         self.index += 1
 
