@@ -230,16 +230,3 @@ def markers(d: OpsData) -> list[tuple[float, str, str]]:
     out = [(xb, "boundary", stream_label(d, k)) for xb, k in d.boundaries]
     out += [(xf, fault_kind(name), name) for xf, name in d.fault_x]
     return out
-
-
-def euler_321(q: np.ndarray) -> np.ndarray:
-    """3-2-1 (yaw about z, pitch about y', roll about x'') angles in degrees, (N, 3) as [yaw,
-    pitch, roll], of the rotation q_body_from_inertial (scalar last); NaN rows stay NaN."""
-    from scipy.spatial.transform import Rotation as R
-
-    q = np.asarray(q, float).reshape(-1, 4)
-    out = np.full((len(q), 3), np.nan)
-    ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(q, axis=1) > 0)
-    if ok.any():
-        out[ok] = R.from_quat(q[ok]).as_euler("ZYX", degrees=True)
-    return out

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from monitors.common import (
     ARCSEC,
     GROUP_LABELS,
@@ -91,14 +93,27 @@ def gyro_status(msg: dict[str, Any] | None, flags: int | None = None) -> list[st
             else "excluded" if i in ex else "ok" for i in range(n)]
 
 
-def euler_321_deg(q: list[float]) -> list[float]:
-    """Yaw, pitch, roll [deg] (3-2-1 = scipy "ZYX") of a scalar-last ``q_body_from_inertial``;
-    [] when q is not 4 finite numbers with a nonzero norm."""
-    if len(q) != 4 or not all(math.isfinite(v) for v in q) or not any(q):
-        return []
+def euler_321(q: Any) -> np.ndarray:
+    """3-2-1 (yaw about z, pitch about y', roll about x'') angles in degrees, (N, 3) as [yaw,
+    pitch, roll] (scipy "ZYX"), of rotations q_body_from_inertial (N, 4) or (4,), scalar last;
+    rows that are not finite with a nonzero norm stay NaN."""
     from scipy.spatial.transform import Rotation
 
-    return [float(v) for v in Rotation.from_quat(q).as_euler("ZYX", degrees=True)]
+    q = np.asarray(q, float).reshape(-1, 4)
+    out = np.full((len(q), 3), np.nan)
+    ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(q, axis=1) > 0)
+    if ok.any():
+        out[ok] = Rotation.from_quat(q[ok]).as_euler("ZYX", degrees=True)
+    return out
+
+
+def euler_321_deg(q: list[float]) -> list[float]:
+    """:func:`euler_321` of one scalar-last ``q_body_from_inertial`` as [yaw, pitch, roll] [deg];
+    [] when q is not 4 finite numbers with a nonzero norm."""
+    if len(q) != 4:
+        return []
+    ypr = euler_321(q)[0]
+    return [] if np.isnan(ypr).any() else [float(v) for v in ypr]
 
 
 def current_lines(msg: dict[str, Any] | None, flags: int | None = None) -> list[tuple[str, str]]:

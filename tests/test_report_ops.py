@@ -153,7 +153,7 @@ def test_html_chi2_bounds_dof3(page):
 def test_euler_321_pinned():
     from scipy.spatial.transform import Rotation as R
 
-    from monitors.report_ops import euler_321
+    from monitors.view import euler_321
 
     yaw, pitch, roll = 30.0, -20.0, 10.0
     # q = q_z(yaw) ⊗ q_y(pitch) ⊗ q_x(roll), written out (scalar last), independent of scipy
