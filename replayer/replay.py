@@ -369,6 +369,10 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
         pull_cost = max(s.cost for s in streams)  # the first pull loaded a chunk: a fair bound
         if wait_subscribers is not None:
             _wait_matching(pubs, keys, wait_subscribers, stop_event)
+            # the polled status is matched now; the listener's callback (another thread) may
+            # come later, and a put before it would be counted as undelivered
+            for t, p in pubs.items():
+                matched[t] = bool(p.matching_status.matching)
         if rate is not None and freeze_gc:
             # A full (generation 2) collection scans every object of the process: tens of ms in a
             # large process (35 ms for 92k objects under pytest). Collect once now and move what
