@@ -29,8 +29,8 @@ import math
 import numpy as np
 
 from ._jit import OK, kernel
-from .model import apply_body_rotation, tracker_residual
-from .propagate import PROP_UNDETERMINED, propagate_window
+from .model import apply_body_rotation, masked_pinv, tracker_error, tracker_geometry
+from .propagate import active_gyros, propagate_sample, sample_work
 from .rotation import quat_mul_into, rotvec_to_quat_into
 from .ud import cholesky_lower
 from .updates import timing_noise
@@ -92,24 +92,33 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     a, z = rows_after(f, i0, end, tlast[0], t_end)
     if z <= a:
         return 0
-    dth = f[a:z, COL_DTH:]
-    dt = f[a:z, COL_DT]
-    var_extra = f[a:z, COL_VAR]
-    status = st[a:z]
-    bridged = br[a:z]
-    m = z - a
-    for h in range(masks.shape[0]):
-        acc_i[:] = 0
-        k = 0
-        while k < m:
-            k, pflags = propagate_window(dth, dt, status, bridged, var_extra, k, masks[h], xp, q[h], A,
-                                         W, U_ax, V_ax, Minv, Gp, N_none, Phi_aa[h], Phi_ap[h],
-                                         Q_aa[h], par_y, par_t, acc_i, acc_f, th_acc, m + 1, arw_var,
-                                         omega[h])
-            if pflags & PROP_UNDETERMINED:
-                undetermined[h] += 1
+    nh, n = masks.shape
+    wk = sample_work(n)  # one set of work arrays for every hypothesis and sample
+    active = wk[8]
+    Gm = np.empty((nh, 3, n))  # per hypothesis: the masked pseudo-inverse of the pattern `have`
+    Mm = np.empty((nh, 3, 3))
+    have = np.full(nh, -1, np.int64)
+    have_ok = np.zeros(nh, np.bool_)
+    undet = np.zeros(nh, np.bool_)
+    for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
+        for h in range(nh):
+            n_act, bits = active_gyros(masks[h], st[k], active)
+            G, Mi = Gp, Minv
+            if n_act < n:
+                if bits != have[h]:  # A is constant over the call: one pseudo-inverse per pattern
+                    have[h], have_ok[h] = bits, masked_pinv(A, active, Mm[h], Gm[h]) >= 0
+                if not have_ok[h]:
+                    undet[h] = True
+                    continue
+                G, Mi = Gm[h], Mm[h]
+            propagate_sample(f[k, COL_DTH:], f[k, COL_DT], f[k, COL_VAR], False, xp, q[h], A, W,
+                             U_ax, V_ax, Mi, G, N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y,
+                             par_t, acc_i, acc_f, th_acc, arw_var, omega[h], wk)
+    for h in range(nh):
+        if undet[h]:
+            undetermined[h] += 1
     tlast[0] = f[z - 1, COL_T]
-    return m
+    return z - a
 
 
 @kernel
@@ -227,6 +236,7 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
             cols[i - 1], cols[i] = cols[i], cols[i - 1]
             i -= 1
     bad = 0
+    tracker_geometry(R_nom, phi, use_phi, Ha, Hphi)  # the same for every hypothesis
     for h in range(nh):
         for i in range(4):
             qe[i] = q[h, i]
@@ -234,7 +244,7 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
             for i in range(3):
                 v[i] = omega[h, i] * dt_extrap
             apply_body_rotation(qe, v, w4, dq)
-        tracker_residual(q_meas, qe, R_nom, phi, use_phi, r, Ha, Hphi)
+        tracker_error(q_meas, qe, Ha, r)
         for a in range(3):
             if use_phi:
                 for c in range(3):

@@ -41,6 +41,22 @@ from .model import refresh_axes
 NIS_CAP = 30.0  # per-sample cap of the bank's NIS (robust likelihood; = the engine's tracker gate)
 CONSISTENCY_P = 1e-4  # the winning hypothesis must pass χ²(3K) at this tail probability
 
+_THR = [np.zeros(0)]  # the table of consistency_thresholds, shared by every bank of the process
+
+
+def consistency_thresholds(k_max: int) -> np.ndarray:
+    """The table thr with thr[k] = chi2_isf(CONSISTENCY_P, 3k) for k ≥ 1 (thr[0] = 0) and at
+    least k_max + 1 entries: the decision's consistency test by tracker count (the compiled test
+    reads it too). One table per process, grown by doubling (a pure function of k)."""
+    thr = _THR[0]
+    if thr.shape[0] <= k_max:
+        new = np.empty(max(2 * thr.shape[0], k_max + 1024))
+        new[:thr.shape[0]] = thr
+        for k in range(thr.shape[0], new.shape[0]):
+            new[k] = chi2_isf(CONSISTENCY_P, 3 * k) if k > 0 else 0.0
+        _THR[0] = thr = new
+    return thr
+
 
 class HypothesisBank:
     """The bank of one alarm, started from the engine snapshot ``snap`` (radical_rt.fdi.Snapshot).
@@ -60,6 +76,7 @@ class HypothesisBank:
         n, npar = eng.n_gyro, eng.ns - 3
         self.snap, self.t_alarm = snap, t_alarm
         self.gyros: list[int | None] = [None] + list(range(n))
+        self._names = ["all"] + [f"ex{g}" for g in range(n)]  # the hypotheses in summaries
         self.masks = np.zeros((n + 1, n), np.bool_)
         self.masks[1:] = np.eye(n, dtype=np.bool_)
         nh = n + 1
@@ -98,7 +115,7 @@ class HypothesisBank:
         self._sig_src, self._sig = None, np.zeros(3)
         self._decided: tuple = (None, None)  # ((k, llr_min), decision) of the last decision
         self.bad_s = 0  # hypothesis-samples whose S was not positive definite (ll = −inf)
-        self._thr = np.zeros(0)  # chi2_isf(CONSISTENCY_P, 3k) by k (the compiled decision test)
+        self._thr = consistency_thresholds(0)  # (the table the kernel tuple holds)
         self._bi, self._bf = np.zeros(8, np.int64), np.zeros(5)
         self._kargs: tuple | None = None
         self._kkey: tuple | None = None  # (si, llr_min) of the controls last written
@@ -177,13 +194,8 @@ class HypothesisBank:
         si = eng.si
         if si.st_sigma is not self._sig_src:
             self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
-        k_max = self.k + rows
-        if self._thr.shape[0] <= k_max:
-            thr = np.empty(max(2 * self._thr.shape[0], k_max + 64))
-            thr[:self._thr.shape[0]] = self._thr
-            for k in range(self._thr.shape[0], thr.shape[0]):
-                thr[k] = chi2_isf(CONSISTENCY_P, 3 * k) if k > 0 else 0.0
-            self._thr, self._kargs = thr, None
+        if self._thr.shape[0] <= self.k + rows:
+            self._thr, self._kargs = consistency_thresholds(self.k + rows), None
         f, st, br, i0, _end = gbuf.blocks()
         bk = self._kargs
         if bk is None or bk[0] is not f or bk[1] is not st or bk[2] is not br or bk[32] is not self._sig:
@@ -254,19 +266,19 @@ class HypothesisBank:
         margin = float(ll[best] - ll[second])
         if margin < llr_min:
             return "wait", None, margin
-        if self.nis[best] > chi2_isf(CONSISTENCY_P, 3 * self.k):
+        if self.nis[best] > consistency_thresholds(self.k)[self.k]:
             return "wait", None, margin  # even the best hypothesis does not explain the trackers
         gyro = self.gyros[best]
         return ("none" if gyro is None else "isolate"), gyro, margin
 
     def summary(self) -> dict[str, Any]:
-        best = float(np.max(self.ll)) if self.k else 0.0
+        best = float(self.ll.max()) if self.k else 0.0
+        ll, nis, k = self.ll.tolist(), self.nis.tolist(), max(self.k, 1)
+        names = self._names
         return {"t_start": self.snap.t, "trackers": self.k,
-                "llr": {("all" if g is None else f"ex{g}"): float(self.ll[h] - best)
-                        for h, g in enumerate(self.gyros)},
-                "nis_mean": {("all" if g is None else f"ex{g}"): float(self.nis[h] / max(self.k, 1))
-                             for h, g in enumerate(self.gyros)},
-                "undetermined": [int(x) for x in self.undetermined]}
+                "llr": {name: x - best for name, x in zip(names, ll, strict=True)},
+                "nis_mean": {name: x / k for name, x in zip(names, nis, strict=True)},
+                "undetermined": self.undetermined.tolist()}
 
 
 def idle_kernel_args() -> tuple:

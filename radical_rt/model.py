@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import inline_kernel, kernel
 from .rotation import (
     dcm_to_quat,
     quat_mul_into,
@@ -126,28 +126,46 @@ def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out
     r = −rotvec(R_meas R̂ᵀ) = R_nom R(φ̂)ᵀ (δθ + J_l(φ̂) δφ) to first order, so
     H_att = R_nom R(φ̂)ᵀ and H_phi = H_att J_l(φ̂) (zero if not use_phi).
     """
-    w = np.empty((5, 3, 3))  # R(φ̂), R_meas, R̂_body, Hm R̂_body, E
-    Rphi, Rm, Rb, G, E = w[0], w[1], w[2], w[3], w[4]
-    Hm = H_att
+    tracker_geometry(R_st_from_body_nom, phi, use_phi, H_att, H_phi)
+    tracker_error(q_meas, q_body_est, H_att, r_out)
+
+
+@kernel
+def tracker_geometry(R_st_from_body_nom, phi, use_phi, H_att, H_phi):
+    """The rows of :func:`tracker_residual`, which do not depend on the attitude: H_att (3, 3) =
+    R_nom R(φ̂)ᵀ and H_phi (3, 3) = H_att J_l(φ̂), zero if not use_phi (φ̂ (3,) [rad, body])."""
     if use_phi:
         q_phi = np.empty(4)
+        Rphi = np.empty((3, 3))
         rotvec_to_quat_into(phi, q_phi)
         quat_to_dcm_into(q_phi, Rphi)
-        for r in range(3):  # Hm = R_nom R(φ̂)ᵀ
+        for r in range(3):  # H_att = R_nom R(φ̂)ᵀ
             for c in range(3):
-                Hm[r, c] = (R_st_from_body_nom[r, 0] * Rphi[c, 0] + R_st_from_body_nom[r, 1]
-                            * Rphi[c, 1] + R_st_from_body_nom[r, 2] * Rphi[c, 2])
+                H_att[r, c] = (R_st_from_body_nom[r, 0] * Rphi[c, 0] + R_st_from_body_nom[r, 1]
+                               * Rphi[c, 1] + R_st_from_body_nom[r, 2] * Rphi[c, 2])
+        J = left_jacobian(phi)
+        for r in range(3):
+            for c in range(3):
+                H_phi[r, c] = H_att[r, 0] * J[0, c] + H_att[r, 1] * J[1, c] + H_att[r, 2] * J[2, c]
     else:
-        Hm[:, :] = R_st_from_body_nom
+        H_att[:, :] = R_st_from_body_nom
+        H_phi[:, :] = 0.0
+
+
+@kernel
+def tracker_error(q_meas, q_body_est, H_att, r_out):
+    """The residual of :func:`tracker_residual` given its H_att (3, 3) (:func:`tracker_geometry`):
+    r_out (3,) = −rotvec(R_meas (H_att R̂_body)ᵀ) [rad, tracker axes], exact below π."""
+    w = np.empty((4, 3, 3))  # R_meas, R̂_body, H_att R̂_body, E
+    Rm, Rb, G, E = w[0], w[1], w[2], w[3]
     quat_to_dcm_into(q_meas, Rm)
     quat_to_dcm_into(q_body_est, Rb)
-    for r in range(3):  # E = R_meas (Hm R̂_body)ᵀ
+    for r in range(3):  # E = R_meas (H_att R̂_body)ᵀ
         for c in range(3):
-            G[r, c] = Hm[r, 0] * Rb[0, c] + Hm[r, 1] * Rb[1, c] + Hm[r, 2] * Rb[2, c]
+            G[r, c] = H_att[r, 0] * Rb[0, c] + H_att[r, 1] * Rb[1, c] + H_att[r, 2] * Rb[2, c]
     for r in range(3):
         for c in range(3):
             E[r, c] = Rm[r, 0] * G[c, 0] + Rm[r, 1] * G[c, 1] + Rm[r, 2] * G[c, 2]
-    # rotvec of the error rotation E (exact for any angle below π).
     ax0 = 0.5 * (E[2, 1] - E[1, 2])
     ax1 = 0.5 * (E[0, 2] - E[2, 0])
     ax2 = 0.5 * (E[1, 0] - E[0, 1])
@@ -155,13 +173,6 @@ def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out
     ang = math.atan2(sn, 0.5 * (E[0, 0] + E[1, 1] + E[2, 2] - 1.0))
     k = 1.0 if sn < 1e-12 else ang / sn
     r_out[0], r_out[1], r_out[2] = -k * ax0, -k * ax1, -k * ax2
-    if use_phi:
-        J = left_jacobian(phi)
-        for r in range(3):
-            for c in range(3):
-                H_phi[r, c] = Hm[r, 0] * J[0, c] + Hm[r, 1] * J[1, c] + Hm[r, 2] * J[2, c]
-    else:
-        H_phi[:, :] = 0.0
 
 
 @kernel
@@ -327,23 +338,37 @@ def increment_jacobian_lin(g, sgn, s, dt, theta, W, U_ax, V_ax, Gp, active, F):
     theta_hat = Gp c with Gp = (AAᵀ)⁻¹A. g (n,) = Aᵀ theta_hat (the corrected increments without
     their parity-direction noise, used in the μ' column); sgn, s from
     :func:`correct_increment_lin`. The λ', du', dv' columns are −Gp[:, i]·(∂a_i/∂p)ᵀθ̂ with the
-    *nominal* constant vectors w_i, −v_i, −u_i. Exact derivative for noise-free data.
+    *nominal* constant vectors w_i, −v_i, −u_i. Exact derivative for noise-free data. Column
+    group k (0..4) of gyro i is column k·n + i (:func:`jacobian_gyro` computes one gyro's five).
     """
     n = g.shape[0]
-    F[:, :] = 0.0
+    Fi = np.empty((3, 5))
     for i in range(n):
-        if not active[i]:
-            continue
-        wt = W[0, i] * theta[0] + W[1, i] * theta[1] + W[2, i] * theta[2]
-        vt = V_ax[0, i] * theta[0] + V_ax[1, i] * theta[1] + V_ax[2, i] * theta[2]
-        ut = U_ax[0, i] * theta[0] + U_ax[1, i] * theta[1] + U_ax[2, i] * theta[2]
+        jacobian_gyro(i, g, sgn, s, dt, theta, W, U_ax, V_ax, Gp, active, Fi)
         for r in range(3):
-            gp = Gp[r, i]
-            F[r, i] = -gp * dt / s[i]
-            F[r, n + i] = -gp * wt
-            F[r, 2 * n + i] = -gp * sgn[i] * g[i] / s[i]
-            F[r, 3 * n + i] = gp * vt
-            F[r, 4 * n + i] = gp * ut
+            for k in range(5):
+                F[r, k * n + i] = Fi[r, k]
+
+
+@inline_kernel
+def jacobian_gyro(i, g, sgn, s, dt, theta, W, U_ax, V_ax, Gp, active, Fi):
+    """The five columns of gyro i in :func:`increment_jacobian_lin` (same arguments) into Fi
+    (3, 5): ∂theta_hat/∂(b_i, λ'_i, μ'_i, du'_i, dv'_i); zero for an inactive gyro."""
+    if not active[i]:
+        for r in range(3):
+            for k in range(5):
+                Fi[r, k] = 0.0
+        return
+    wt = W[0, i] * theta[0] + W[1, i] * theta[1] + W[2, i] * theta[2]
+    vt = V_ax[0, i] * theta[0] + V_ax[1, i] * theta[1] + V_ax[2, i] * theta[2]
+    ut = U_ax[0, i] * theta[0] + U_ax[1, i] * theta[1] + U_ax[2, i] * theta[2]
+    for r in range(3):
+        gp = Gp[r, i]
+        Fi[r, 0] = -gp * dt / s[i]
+        Fi[r, 1] = -gp * wt
+        Fi[r, 2] = -gp * sgn[i] * g[i] / s[i]
+        Fi[r, 3] = gp * vt
+        Fi[r, 4] = gp * ut
 
 
 @kernel

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import inline_kernel, kernel
 from .model import (
     apply_body_quat,
     apply_body_rotation,
     correct_increment_lin,
-    increment_jacobian_lin,
+    jacobian_gyro,
     masked_pinv,
 )
 from .rotation import quat_to_dcm_into, rotvec_to_quat_into
@@ -50,31 +50,16 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     Returns (index of the next unprocessed sample, flags PROP_*).
     """
     m, n = dtheta.shape
-    c = np.empty(n)
-    sg = np.empty(n)
-    s = np.empty(n)
-    th = np.empty(3)
-    gh = np.empty(n)
-    F = np.empty((3, 5 * n))
-    work4 = np.empty(4)
-    dq = np.empty(4)
+    wk = sample_work(n)
     Gm = np.empty((3, n))
     Mm = np.empty((3, 3))
-    R = np.empty((3, 3))  # R(θ̂) of the sample; the attitude-error transition is Rᵀ
-    T = np.empty((3, 3))
-    active = np.empty(n, dtype=np.bool_)
+    active = wk[8]
     flags = 0
     k = i0
     have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
     have_ok = False
     while k < m and acc_i[0] < window:
-        n_act = 0
-        bits = 0
-        for i in range(n):
-            active[i] = (not excluded[i]) and ((status[k] >> i) & 1) == 0
-            if active[i]:
-                n_act += 1
-                bits |= 1 << i
+        n_act, bits = active_gyros(excluded, status[k], active)
         G, Mi = Gp, Minv
         if n_act < n:
             flags |= PROP_MASKED
@@ -85,56 +70,93 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
                 k += 1
                 continue
             G, Mi = Gm, Mm
-        h = dt[k]
-        correct_increment_lin(dtheta[k], h, xp, active, c, sg, s)
-        for r in range(3):
-            th[r] = G[r, 0] * c[0]
-            for i in range(1, n):
-                th[r] += G[r, i] * c[i]
-        for i in range(n):
-            gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
-        increment_jacobian_lin(gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
-        rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
-        quat_to_dcm_into(dq, R)
-        # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
-        for j in range(3):
-            x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
-            for r in range(3):
-                Phi_aa[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
-        for j in range(5 * n):
-            x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
-            for r in range(3):
-                Phi_ap[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2 + F[r, j]
-        for j in range(3):
-            x0, x1, x2 = Q_aa[0, j], Q_aa[1, j], Q_aa[2, j]
-            for r in range(3):
-                T[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
-        qn = arw_var * h
-        for r in range(3):
-            for j in range(3):
-                Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
-            Q_aa[r, r] += var_extra[k]
-            omega[r] = th[r] / h
-        apply_body_quat(q, dq, work4)
-        if n_act == n and not bridged[k] and N.shape[1] > 0:
-            for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
-                row = 0 if sg[i] > 0.0 else 1
-                par_y[row, i] += dtheta[k, i]
-                par_t[row, i] += h
-            if acc_i[3] == 0:
-                acc_i[2] += 1  # a new contiguous run: one more quantization endpoint pair
-            acc_i[1] += 1
-            acc_i[3] = 1
-            acc_f[1] += arw_var * h
-            acc_f[2] += h
-        else:
-            acc_i[3] = 0
-        for r in range(3):
-            th_acc[r] += th[r]
-        acc_i[0] += 1
-        acc_f[0] += h
+        propagate_sample(dtheta[k], dt[k], var_extra[k], n_act == n and not bridged[k], xp, q, A,
+                         W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+                         th_acc, arw_var, omega, wk)
         k += 1
     return k, flags
+
+
+@kernel
+def sample_work(n):
+    """Work arrays of :func:`propagate_sample` for n gyros, one tuple: c, sg, s, gh (n,), th (3,),
+    F (3, 5) (one gyro's Jacobian columns), work4, dq (4,), active (n,) bool, R, T (3, 3). Each is written before it is read."""
+    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(3), np.empty((3, 5)),
+            np.empty(4), np.empty(4), np.empty(n, dtype=np.bool_), np.empty((3, 3)), np.empty((3, 3)))
+
+
+@inline_kernel
+def active_gyros(excluded, status_k, active):
+    """active (n,) ← the gyros neither excluded (n,) bool nor flagged invalid in the status bits
+    status_k of one sample. Returns (their number, their bit pattern)."""
+    n_act = 0
+    bits = 0
+    for i in range(excluded.shape[0]):
+        active[i] = (not excluded[i]) and ((status_k >> i) & 1) == 0
+        if active[i]:
+            n_act += 1
+            bits |= 1 << i
+    return n_act, bits
+
+
+@inline_kernel
+def propagate_sample(dth_k, h, var_k, parity, xp, q, A, W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap,
+                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, omega, wk):
+    """One gyro sample (dth_k (n,) [rad] over h [s], extra variance var_k [rad²]) over the active
+    gyros wk[8] whose pseudo-inverse is G (3, n) and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c, the attitude q
+    and omega, the window accumulators (module docstring), and when ``parity`` (all gyros, not
+    bridged) the parity statistics. wk: :func:`sample_work`."""
+    c, sg, s, gh, th, F, work4, dq, active, R, T = wk
+    n = dth_k.shape[0]
+    correct_increment_lin(dth_k, h, xp, active, c, sg, s)
+    for r in range(3):
+        th[r] = G[r, 0] * c[0]
+        for i in range(1, n):
+            th[r] += G[r, i] * c[i]
+    for i in range(n):
+        gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
+    rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
+    quat_to_dcm_into(dq, R)
+    # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
+    for j in range(3):
+        x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
+        for r in range(3):
+            Phi_aa[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+    for i in range(n):  # F = ∂θ̂/∂p̂ one gyro (five columns k·n + i) at a time
+        jacobian_gyro(i, gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
+        for k in range(5):
+            j = k * n + i
+            x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
+            for r in range(3):
+                Phi_ap[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2 + F[r, k]
+    for j in range(3):
+        x0, x1, x2 = Q_aa[0, j], Q_aa[1, j], Q_aa[2, j]
+        for r in range(3):
+            T[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+    qn = arw_var * h
+    for r in range(3):
+        for j in range(3):
+            Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
+        Q_aa[r, r] += var_k
+        omega[r] = th[r] / h
+    apply_body_quat(q, dq, work4)
+    if parity and N.shape[1] > 0:
+        for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
+            row = 0 if sg[i] > 0.0 else 1
+            par_y[row, i] += dth_k[i]
+            par_t[row, i] += h
+        if acc_i[3] == 0:
+            acc_i[2] += 1  # a new contiguous run: one more quantization endpoint pair
+        acc_i[1] += 1
+        acc_i[3] = 1
+        acc_f[1] += arw_var * h
+        acc_f[2] += h
+    else:
+        acc_i[3] = 0
+    for r in range(3):
+        th_acc[r] += th[r]
+    acc_i[0] += 1
+    acc_f[0] += h
 
 
 @kernel
