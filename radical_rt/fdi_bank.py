@@ -29,7 +29,13 @@ import math
 import numpy as np
 
 from ._jit import OK, kernel
-from .model import apply_body_rotation, masked_pinv, tracker_error, tracker_geometry
+from .model import (
+    apply_body_rotation,
+    correct_increment_lin,
+    masked_pinv,
+    tracker_error,
+    tracker_geometry,
+)
 from .propagate import active_gyros, propagate_sample, sample_work
 from .rotation import quat_mul_into, rotvec_to_quat_into
 from .ud import cholesky_lower
@@ -100,7 +106,18 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     have = np.full(nh, -1, np.int64)
     have_ok = np.zeros(nh, np.bool_)
     undet = np.zeros(nh, np.bool_)
+    th = wk[4]
+    th_last = np.empty((nh, 3))  # θ̂ [rad] and interval [s] of each hypothesis's last sample
+    h_last = np.zeros(nh)
+    moved = np.zeros(nh, np.bool_)
+    c, sg, s = wk[0], wk[1], wk[2]
+    c_all, sg_all, s_all = np.empty(n), np.empty(n), np.empty(n)  # the increments corrected once
+    act_all = np.empty(n, np.bool_)
+    no_mask = np.zeros(n, np.bool_)
     for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
+        dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
+        active_gyros(no_mask, st[k], act_all)
+        correct_increment_lin(dth_k, h_k, xp, act_all, c_all, sg_all, s_all)
         for h in range(nh):
             n_act, bits = active_gyros(masks[h], st[k], active)
             G, Mi = Gp, Minv
@@ -111,12 +128,22 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
                     undet[h] = True
                     continue
                 G, Mi = Gm[h], Mm[h]
-            propagate_sample(f[k, COL_DTH:], f[k, COL_DT], f[k, COL_VAR], False, xp, q[h], A, W,
-                             U_ax, V_ax, Mi, G, N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y,
-                             par_t, acc_i, acc_f, th_acc, arw_var, omega[h], wk)
+            for i in range(n):  # correct_increment_lin over this hypothesis's gyros
+                if active[i]:
+                    c[i], sg[i], s[i] = c_all[i], sg_all[i], s_all[i]
+                else:
+                    c[i], sg[i], s[i] = 0.0, 0.0, 1.0
+            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, xp, q[h], A, W, U_ax, V_ax, Mi, G,
+                             N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y, par_t, acc_i, acc_f,
+                             th_acc, arw_var, wk, True)
+            th_last[h, 0], th_last[h, 1], th_last[h, 2] = th[0], th[1], th[2]
+            h_last[h], moved[h] = h_k, True
     for h in range(nh):
         if undet[h]:
             undetermined[h] += 1
+        if moved[h]:  # the body rate of its last sample
+            for r in range(3):
+                omega[h, r] = th_last[h, r] / h_last[h]
     tlast[0] = f[z - 1, COL_T]
     return z - a
 

@@ -58,6 +58,8 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     k = i0
     have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
     have_ok = False
+    h_last = 0.0  # interval of the last sample propagated [s]
+    moved = False
     while k < m and acc_i[0] < window:
         n_act, bits = active_gyros(excluded, status[k], active)
         G, Mi = Gp, Minv
@@ -72,8 +74,13 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
             G, Mi = Gm, Mm
         propagate_sample(dtheta[k], dt[k], var_extra[k], n_act == n and not bridged[k], xp, q, A,
                          W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
-                         th_acc, arw_var, omega, wk)
+                         th_acc, arw_var, wk, False)
+        h_last, moved = dt[k], True
         k += 1
+    if moved:  # the body rate of the last sample propagated
+        th = wk[4]
+        for r in range(3):
+            omega[r] = th[r] / h_last
     return k, flags
 
 
@@ -101,14 +108,17 @@ def active_gyros(excluded, status_k, active):
 
 @inline_kernel
 def propagate_sample(dth_k, h, var_k, parity, xp, q, A, W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap,
-                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, omega, wk):
+                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk, corrected):
     """One gyro sample (dth_k (n,) [rad] over h [s], extra variance var_k [rad²]) over the active
-    gyros wk[8] whose pseudo-inverse is G (3, n) and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c, the attitude q
-    and omega, the window accumulators (module docstring), and when ``parity`` (all gyros, not
-    bridged) the parity statistics. wk: :func:`sample_work`."""
+    gyros wk[8] whose pseudo-inverse is G (3, n) and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c (left in wk[4];
+    the caller takes the body rate θ̂/h of the last sample of a run from it), the attitude q, the
+    window accumulators (module docstring), and when ``parity`` (all gyros, not
+    bridged) the parity statistics. wk: :func:`sample_work`; ``corrected``: its c, sg, s already
+    hold :func:`radical_rt.model.correct_increment_lin` of this sample over the active gyros."""
     c, sg, s, gh, th, F, work4, dq, active, R, T = wk
     n = dth_k.shape[0]
-    correct_increment_lin(dth_k, h, xp, active, c, sg, s)
+    if not corrected:
+        correct_increment_lin(dth_k, h, xp, active, c, sg, s)
     for r in range(3):
         th[r] = G[r, 0] * c[0]
         for i in range(1, n):
@@ -138,7 +148,6 @@ def propagate_sample(dth_k, h, var_k, parity, xp, q, A, W, U_ax, V_ax, Mi, G, N,
         for j in range(3):
             Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
         Q_aa[r, r] += var_k
-        omega[r] = th[r] / h
     apply_body_quat(q, dq, work4)
     if parity and N.shape[1] > 0:
         for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
