@@ -398,6 +398,26 @@ def bank_step(f, st, br, i0, end, q_meas, n_stars, epoch, R_nom, use_phi, phi, p
                         Ptp, Ppp, ll, nis, nis_k, logdet_k, W33, W3p, W4)
 
 
+@kernel
+def bank_run(f, st, br, i0, end, q_meas, n_stars, epoch, st2, R1, R2, phi, phi_col, lat_col, tau,
+             st_sigma, ref_stars, sig_t, gate, masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none,
+             arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, ll, nis,
+             nis_k, logdet_k, par_y, par_t, acc_i, acc_f, th_acc, W33, W3p, W4):
+    """:func:`bank_step` for m tracker samples in epoch order, in one call (the bank's catch-up
+    from its snapshot): q_meas (m, 4) q_st_from_inertial, n_stars (m,) int64, epoch (m,) [s],
+    st2 (m,) bool (ST2: mounting R2 and the φ2 columns; else ST1 with R1, both (3, 3)
+    R_st_from_body nominal); the other arguments as in bank_step. Returns the sum of its counts."""
+    bad = 0
+    for i in range(q_meas.shape[0]):
+        R_nom = R2 if st2[i] else R1
+        bad += bank_step(f, st, br, i0, end, q_meas[i], n_stars[i], epoch[i], R_nom, st2[i], phi,
+                         phi_col, lat_col, tau, st_sigma, ref_stars, sig_t, gate, masks, xp, A, W,
+                         U_ax, V_ax, Minv, Gp, N_none, arw_var, q, omega, tlast, undetermined,
+                         Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, ll, nis, nis_k, logdet_k, par_y,
+                         par_t, acc_i, acc_f, th_acc, W33, W3p, W4)
+    return bad
+
+
 #: bank_sample's integer and float controls (the last two entries of the bank's kernel tuple,
 #: radical_rt.fdi_hypotheses.HypothesisBank.kernel_args)
 BI_ON, BI_I0, BI_END, BI_PHI_COL, BI_LAT_COL, BI_K, BI_STEPS, BI_BAD = range(8)

@@ -33,7 +33,7 @@ from .fdi_bank import (
     BI_STEPS,
     bank_flush,
     bank_propagate,
-    bank_step,
+    bank_run,
 )
 from .fdi_detect import chi2_isf
 from .model import refresh_axes
@@ -153,25 +153,29 @@ class HypothesisBank:
         if end > i0 and bank_propagate(f, st, br, i0, end, t_end, *self._cal(eng), *self._pw):
             self.t_last = float(self.tlast[0])
 
-    def update_tracker(self, eng, gbuf, j: int, t_epoch: float, q_meas: np.ndarray,
-                       n_stars: int) -> None:
-        """One valid tracker sample (ST ``j``, epoch [s], measured q_st_from_inertial, stars) for
-        every hypothesis, after the gyro samples up to its epoch (one call)."""
-        if j == 1:
-            R_nom, use_phi = eng.geo.R_st1_from_body, False
-        else:
-            R_nom, use_phi = eng.geo.R_st2_from_body_nom, True
+    def update_trackers(self, eng, gbuf, batch: list[tuple]) -> None:
+        """Valid tracker samples (seq, epoch [s], ST j, measured q_st_from_inertial (4,), stars),
+        in epoch order, for every hypothesis, each after the gyro samples up to its epoch (one
+        kernel call for the whole batch)."""
         si = eng.si
         if si.st_sigma is not self._sig_src:
             self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
+        m = len(batch)
+        epoch, q_meas = np.empty(m), np.empty((m, 4))
+        n_stars, st2 = np.empty(m, np.int64), np.empty(m, np.bool_)
+        for i, (_seq, t_epoch, j, q, n) in enumerate(batch):
+            epoch[i], q_meas[i], n_stars[i], st2[i] = t_epoch, q, n, j == 2
         f, st, br, i0, end = gbuf.blocks()
-        self.bad_s += bank_step(
-            f, st, br, i0, end, q_meas, n_stars, t_epoch, R_nom, use_phi, self.phi, self.phi_col,
-            self.lat_col, self.tau, self._sig, si.st_ref_stars, eng.timing_sigma(), NIS_CAP,
-            *self._cal(eng), self.Ptt, self.Ptp, self.Ppp, self.ll, self.nis, self.nis_k,
-            self.logdet_k, *self._pw, self._w33, self._w3p, self._w4)
+        geo = eng.geo
+        self.bad_s += bank_run(
+            f, st, br, i0, end, q_meas, n_stars, epoch, st2,
+            np.ascontiguousarray(geo.R_st1_from_body), np.ascontiguousarray(geo.R_st2_from_body_nom),
+            self.phi, self.phi_col, self.lat_col, self.tau, self._sig, si.st_ref_stars,
+            eng.timing_sigma(), NIS_CAP, *self._cal(eng), self.Ptt, self.Ptp, self.Ppp, self.ll,
+            self.nis, self.nis_k, self.logdet_k, *self._pw, self._w33, self._w3p, self._w4)
         self.t_last = float(self.tlast[0])
-        self.k += 1
+        self.k += m
+        self.trk_seq = batch[-1][0]
 
     def final_state(self, eng, gbuf, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                          np.ndarray]:
@@ -241,13 +245,12 @@ class HypothesisBank:
         (sample by sample), so only the covariance's rounding depends on where runs end."""
         # sequence numbers are consecutive in the deque: index the first one not yet processed
         k = max(0, self.trk_seq + 1 - trk[0][0]) if trk else 0
-        while k < len(trk):
-            seq, epoch, j, q_meas, n_stars = trk[k]
+        batch = []
+        while k < len(trk) and trk[k][1] <= t_upto:
+            batch.append(trk[k])
             k += 1
-            if epoch > t_upto:
-                break
-            self.update_tracker(eng, gbuf, j, epoch, q_meas, n_stars)
-            self.trk_seq = seq
+        if batch:
+            self.update_trackers(eng, gbuf, batch)
 
     def decision(self, llr_min: float) -> tuple[str, int | None, float]:
         """("isolate", gyro, margin), ("none", None, margin) when H0 wins, or ("wait", …)."""

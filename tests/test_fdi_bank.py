@@ -42,10 +42,11 @@ ISOLATED = {"bias 5 deg/hr B": 1, "noise burst A": 0, "stuck C": 2, "zero output
 
 
 class _TracedNew(HypothesisBank):
-    def update_tracker(self, eng, gbuf, j, t_epoch, q_meas, n_stars):
-        nis0 = self.nis.copy()
-        super().update_tracker(eng, gbuf, j, t_epoch, q_meas, n_stars)
-        self.trace.append((t_epoch, self.ll.copy(), self.nis.copy(), self.nis - nis0))
+    def update_trackers(self, eng, gbuf, batch):
+        for item in batch:  # one sample per kernel call, to trace each (test_batch_... below)
+            nis0 = self.nis.copy()
+            super().update_trackers(eng, gbuf, [item])
+            self.trace.append((item[1], self.ll.copy(), self.nis.copy(), self.nis - nis0))
 
 
 class _TracedRef(PythonHypothesisBank):
@@ -242,3 +243,36 @@ def test_fast_path_hands_over_at_tracker_samples_only_while_a_bank_runs(tmp_path
     assert live <= len(calls) <= live + 1.5 * span + 10, (len(calls), live, span)
     assert len(calls) < 0.8 * windows
     assert np.all(np.diff(t) >= 0.0)
+
+
+class _OneByOne(HypothesisBank):
+    """The bank with every tracker sample of a catch-up in its own kernel call."""
+
+    def update_trackers(self, eng, gbuf, batch):
+        for item in batch:
+            super().update_trackers(eng, gbuf, [item])
+
+
+def test_batched_catch_up_equals_one_sample_per_call(tmp_path, monkeypatch):
+    """HypothesisBank.advance hands a whole catch-up (the samples since the snapshot the bank
+    starts from) to one kernel call (fdi_bank.bank_run): bit for bit the run of one call per
+    sample (isolation, margin, bank summary, engine state)."""
+    fault, duration = SCENARIOS["stuck C"]
+    path = synth(fault_toml(fault, duration=duration), tmp_path / "fault.mcap")
+    batches = []
+    orig = HypothesisBank.update_trackers
+
+    def spy(self, eng, gbuf, batch):
+        batches.append(len(batch))
+        return orig(self, eng, gbuf, batch)
+
+    monkeypatch.setattr(HypothesisBank, "update_trackers", spy)
+    sp_b = _run(path, HypothesisBank, monkeypatch)
+    monkeypatch.undo()
+    assert max(batches) > 20  # a real catch-up went through one call
+    sp_1 = _run(path, _OneByOne, monkeypatch)
+    f_b, f_1 = sp_b.engine.fdi, sp_1.engine.fdi
+    assert len(f_b.isolations) == 1 and f_b.isolations == f_1.isolations
+    e_b, e_1 = sp_b.engine, sp_1.engine
+    assert e_b.t == e_1.t and np.array_equal(e_b.q, e_1.q) and np.array_equal(e_b.xp, e_1.xp)
+    assert np.array_equal(e_b.U, e_1.U) and np.array_equal(e_b.d, e_1.d)
