@@ -425,11 +425,13 @@ BF_TAU, BF_REF_STARS, BF_GATE, BF_LLR_MIN, BF_ARW = range(5)
 
 
 @kernel
-def decision_due(ll, nis, thr, k, llr_min):
-    """Whether HypothesisBank.decision(llr_min) would say anything but "wait" after k ≥ 1 tracker
-    samples: ll, nis (nh,) as in the bank, thr (K,) the consistency thresholds χ²(3k) by k (the
-    bank's table of fdi_detect.chi2_isf; k ≥ K answers True, a harmless handover). Same order of
-    tests and same ties (best and runner-up: the first index) as the Python decision."""
+def decide(ll, nis, thr, k, llr_min):
+    """The bank's decision after k ≥ 1 tracker samples (docs/fdi.md §3.3): ll, nis (nh,) as in
+    the bank, thr (K,) the consistency thresholds χ²(3k) by k (fdi_hypotheses.consistency_thresholds),
+    llr_min the margin. Returns (code, best, margin): the best hypothesis and runner-up (the first
+    index on ties), margin = ll[best] − ll[runner-up]; code 0 wait (margin below llr_min, or the
+    best hypothesis fails the consistency test), 1 the best hypothesis is chosen, 2 the table is
+    too short to tell (k ≥ K)."""
     nh = ll.shape[0]
     best = 0
     for h in range(1, nh):
@@ -441,10 +443,17 @@ def decision_due(ll, nis, thr, k, llr_min):
             second = h
     margin = ll[best] - ll[second]
     if margin < llr_min:
-        return False
+        return 0, best, margin
     if k >= thr.shape[0]:
-        return True
-    return not nis[best] > thr[k]
+        return 2, best, margin
+    return (0 if nis[best] > thr[k] else 1), best, margin
+
+
+@kernel
+def decision_due(ll, nis, thr, k, llr_min):
+    """Whether HypothesisBank.decision(llr_min) would say anything but "wait" after k ≥ 1 tracker
+    samples (:func:`decide`; a table too short answers True, a harmless handover)."""
+    return decide(ll, nis, thr, k, llr_min)[0] != 0
 
 
 @kernel

@@ -34,6 +34,7 @@ from .fdi_bank import (
     bank_flush,
     bank_propagate,
     bank_run,
+    decide,
 )
 from .fdi_detect import chi2_isf
 from .model import refresh_axes
@@ -263,14 +264,10 @@ class HypothesisBank:
     def _decide(self, llr_min: float) -> tuple[str, int | None, float]:
         if self.k == 0:
             return "wait", None, 0.0
-        ll = self.ll.tolist()  # best and runner-up, the first index on ties (a stable argsort)
-        best = max(range(len(ll)), key=ll.__getitem__)
-        second = max((h for h in range(len(ll)) if h != best), key=ll.__getitem__)
-        margin = float(ll[best] - ll[second])
-        if margin < llr_min:
+        code, best, margin = decide(self.ll, self.nis, consistency_thresholds(self.k), self.k,
+                                    llr_min)
+        if code == 0:
             return "wait", None, margin
-        if self.nis[best] > consistency_thresholds(self.k)[self.k]:
-            return "wait", None, margin  # even the best hypothesis does not explain the trackers
         gyro = self.gyros[best]
         return ("none" if gyro is None else "isolate"), gyro, margin
 
