@@ -12,7 +12,6 @@ reference path would do something only Python does:
   takes the rest of the run;
 * ``R_CLOSE_TAIL``: a window closed with a kernel error, or a parity sum is complete, or a queued
   parity sum has waited its lag (parity queue, FDI parity hook, parity update);
-* ``R_TRACKER_PY``: an invalid tracker sample (counted by Python);
 * ``R_TRACKER_SLOW``: the whitening of the tracker noise with the clock's timing term failed
   (Python redoes the update and handles the error);
 * ``R_VEC_STATUS`` / ``R_NUMERIC_FOLD``: a kernel error in the tracker update or the fold;
@@ -66,6 +65,9 @@ from .fastpath_layout import (
     CNT_CONSIDER,
     CNT_EDITED,
     CNT_FLAGS,
+    CNT_INVALID_ST,
+    CNT_INVALID_ST1,
+    CNT_INVALID_ST2,
     CNT_MASKED,
     CNT_STATUS,
     CNT_UNDETERMINED,
@@ -93,8 +95,8 @@ from .timeupdate import close_time_window
 from .ud import decorrelate, variances_within
 from .updates import gated_update, gated_update_consider, timing_noise, unwhiten_diagnostics
 
-(R_DONE, R_SLOW, R_CLOSE_TAIL, R_TRACKER_SLOW, R_VEC_STATUS, R_NUMERIC_FOLD, R_ON_WINDOW,
- R_TRACKER_PY) = range(8)
+(R_DONE, R_SLOW, R_CLOSE_TAIL, R_TRACKER_SLOW, R_VEC_STATUS, R_NUMERIC_FOLD,
+ R_ON_WINDOW) = range(7)
 
 _ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
 _ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
@@ -205,15 +207,18 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
     q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
     the residual and rows, the gated update, the fold and the window test, as Engine.tracker does
-    once the attitude is initialized. An invalid sample returns R_TRACKER_PY at once (Python
-    counts it); otherwise io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
+    once the attitude is initialized. An invalid sample (not valid, or too few stars) is only
+    counted, cnt[CNT_INVALID_ST + j] += 1, with cnt[CNT_UPDATED] = −1 (R_DONE); otherwise
+    io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
     (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
      acc_f, th_acc, omega, U, d, dx, q_params, param_idx, q_dt, struct_w, a_w, var_w, conv_var,
      kappa_last, Hbuf, r3, H_att, H_phi, Fbuf, Sbuf, innov, sig, f_w, v_w, k_w, st_sigma,
      gyro_mask, Hwbuf, zwbuf, Lbuf) = E
     cnt[CNT_UPDATED], cnt[CNT_CONSIDER] = 0, 0
-    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:
-        return R_TRACKER_PY
+    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:  # Engine.tracker: counted, nothing else
+        cnt[CNT_INVALID_ST + j] += 1
+        cnt[CNT_UPDATED] = -1
+        return R_DONE
     io[IO_LAST_ST + j] = t_epoch
     if acc_i[0] > 0 and _close(E, cfg, io, cnt):
         return R_CLOSE_TAIL
@@ -272,7 +277,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
     to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). The update results of every tracker event
     go to evo_f (E, 7) (NIS, innovation (3,), σ (3,)) and evo_i (E, 4) (status, edited, updated,
-    consider)
+    consider; updated −1: an invalid sample, only counted in cnt[CNT_INVALID_ST + j])
     for Python's bookkeeping. Returns (reason, next sample, event, stage): R_DONE with event ==
     n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
     before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
@@ -290,11 +295,12 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     takes the decision at the same sample as the reference path.
     s_t .. s_flags: the engine's scalar state, loaded into io[IO_T..IO_MODE]
     and cnt[CNT_FLAGS] (cnt[CNT_USED..CNT_MASKED] ← 0, 0,
-    −1) first (module docstring; FastRelease._fast_begin)."""
+    −1, the invalid-sample counts ← 0) first (module docstring; FastRelease._fast_begin)."""
     io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
     io[IO_WAKE_T], io[IO_WAKE_E], io[IO_PARITY_OLDEST] = wake_t, wake_e, s_parity
     io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
     cnt[CNT_FLAGS], cnt[CNT_USED], cnt[CNT_UNDETERMINED], cnt[CNT_MASKED] = s_flags, 0, 0, -1
+    cnt[CNT_INVALID_ST1], cnt[CNT_INVALID_ST2] = 0, 0
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -319,7 +325,8 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
             evo_f[e, 4 + r] = sig[r]
         # the bank takes every sample whose update the kernel completed, also one after which
         # the window hook has work (R_ON_WINDOW: Python then finds the bank caught up)
-        if (reason == R_DONE or reason == R_ON_WINDOW) and bk_on[BI_ON] != 0 and bank_sample(
+        if (reason == R_DONE or reason == R_ON_WINDOW) and cnt[CNT_UPDATED] >= 0 and bk_on[
+                BI_ON] != 0 and bank_sample(
                 bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
                 io[IO_SIG_T], E[_W],
                 E[_UAX], E[_VAX]):

@@ -93,6 +93,11 @@ class FastRelease:
             self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
             self.flags, used = int(cnt[FL.CNT_FLAGS]), int(cnt[FL.CNT_USED])
             undetermined, masked = int(cnt[FL.CNT_UNDETERMINED]), int(cnt[FL.CNT_MASKED])
+            inv1, inv2 = int(cnt[FL.CNT_INVALID_ST1]), int(cnt[FL.CNT_INVALID_ST2])
+            if inv1:
+                self.counters["st1_invalid"] += inv1
+            if inv2:
+                self.counters["st2_invalid"] += inv2
             if used:
                 self.counters["siru_used"] += used
             if undetermined:
@@ -141,7 +146,7 @@ class FastRelease:
 
     def _trackers_taken(self, events, e: int, e_stop: int) -> bool:
         """The reference path's bookkeeping of the rows e..e_stop−1 of an event block the kernel
-        completed (valid tracker samples): last valid epoch, FDI hook and, where the update ran,
+        completed (valid tracker samples; an invalid one it only counted is skipped): last valid epoch, FDI hook and, where the update ran,
         status check, diagnostics and counters, read from the block's arrays in one pass (no event
         tuples; the FDI's quaternions and the diagnostics are rows of one copy each). Returns
         whether the last row's update was used."""
@@ -152,12 +157,14 @@ class FastRelease:
         last, fdi = self.last_valid_st, self.fdi
         used = False
         for r, head in enumerate(heads):
+            status, edited, updated, consider = outs_i[r]
+            used = False
+            if updated < 0:  # an invalid sample: the kernel counted it, nothing else to do
+                continue
             j, t_epoch = head[0], epochs[r]
             last[j] = t_epoch
             if fdi is not None:
                 fdi.on_tracker(j, t_epoch, quats[r], head[1])
-            status, edited, updated, consider = outs_i[r]
-            used = False
             if not updated:
                 continue
             kind = _ST_KIND[j]
@@ -226,9 +233,6 @@ class FastRelease:
         """Row e of the event block, at which :func:`radical_rt.fastpath.fast_release` handed
         over: the bookkeeping of what the kernel did, then the reference steps from there."""
         ev = events.event(e)
-        if reason == fp.R_TRACKER_PY:  # invalid sample: the reference path counts it
-            self.tracker(*ev)
-            return
         used = self._trackers_taken(events, e, e + 1)
         j, t_epoch, q_meas, n_stars, _valid = ev
         if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:

@@ -59,4 +59,7 @@ CNT_STATUS = CNT.add("status", doc="kernel status (out)")
 CNT_EDITED = CNT.add("edited", doc="1: the tracker sample was edited (out)")
 CNT_UPDATED = CNT.add("updated", doc="1: a tracker update ran (out)")
 CNT_CONSIDER = CNT.add("consider", doc="1: the gyro calibration was a consider state (out)")
+CNT_INVALID_ST1 = CNT.add("invalid_st1", doc="invalid ST1 samples skipped (+=)")
+CNT_INVALID_ST2 = CNT.add("invalid_st2", doc="invalid ST2 samples skipped (+=)")
 CNT.freeze()
+CNT_INVALID_ST = CNT_INVALID_ST1 - 1  # CNT_INVALID_ST + j: tracker j
