@@ -184,7 +184,7 @@ def write_calibration_report(out: Path, data: list[Any], tables_md: dict[str, st
                              figures: list[tuple[str, str]]) -> Path:
     """Write ``out/calibration_report.html`` from loaded archives, the table Markdown and the
     figure files already written in ``out``; returns its path."""
-    from monitors.report import _md_table_to_html
+    from monitors.report import md_table_to_html
 
     h = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
          "<title>RADICAL-RT calibration report</title>", f"<style>{_CSS}</style></head><body>",
@@ -213,7 +213,7 @@ def write_calibration_report(out: Path, data: list[Any], tables_md: dict[str, st
     h.append("<h2>2. Tables 2–7: estimate ± 1σ (last packet)</h2>")
     for g in ORDER:
         if g in tables_md:
-            h.append(_md_table_to_html(tables_md[g]))
+            h.append(md_table_to_html(tables_md[g]))
     h.append("<h2>3. Convergence</h2><p class='note'>Times in s since the first packet: from "
              "when the group's largest 1σ stays below 10× and 2× its final value, and (with "
              "truth) from when every element stays within 3σ of the truth.</p>")

@@ -730,7 +730,7 @@ margin:.3em 0 1.2em}h2{border-bottom:2px solid #99c;margin-top:1.6em}.note{color
 code{background:#f4f4f4;padding:0 3px}"""
 
 
-def _md_table_to_html(md: str) -> str:
+def md_table_to_html(md: str) -> str:
     out, in_table = [], False
     for line in md.splitlines():
         if line.startswith("|"):
@@ -778,7 +778,7 @@ def write_index(out: Path, data: list[ArchiveData], tables_md: dict[str, str],
                  for md, cs in (table_files(g) for g in tables_md)) + ".</p>")
     h.append("<h2>Tables 2–7</h2>")
     for g in tables_md:
-        h.append(_md_table_to_html(tables_md[g]))
+        h.append(md_table_to_html(tables_md[g]))
     h.append("<h2>Figures</h2>")
     for name, caption in figures:
         h.append(f"<h3>{html.escape(caption)}</h3><a href='{html.escape(name)}'>"
@@ -870,7 +870,7 @@ def make_report(paths: list[str], out_dir: str | Path, labels: str | None = None
             figure_ops(o, out / f"ops_{safe_name(o.label)}.png")
             figs.append((f"ops_{safe_name(o.label)}.png", f"Operations ({o.label}): attitude, "
                          "rates, attitude error, latency, clock, NIS, flags; streams apart"))
-        write_html(out, ops, "".join(_md_table_to_html(tables_md[g]) for g in groups))
+        write_html(out, ops, "".join(md_table_to_html(tables_md[g]) for g in groups))
     write_index(out, data, tables_md, figs)
     from monitors.calreport import write_calibration_report
 

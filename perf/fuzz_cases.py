@@ -19,7 +19,7 @@ import msgpack
 import numpy as np
 
 from radical_rt.commands import BUMP_MAX_SI
-from radical_rt.params import _CHOICES, RANGES, Params
+from radical_rt.params import CHOICES, RANGES, Params
 from radical_rt.telemetry import CATALOGUE, DECIMATION_MAX, PERIOD_RANGE_S
 
 N_GYRO = 4
@@ -57,7 +57,7 @@ def _valid_param(r: random.Random, name: str) -> Any:
     if isinstance(d, bool):
         return r.random() < 0.5
     if isinstance(d, str):
-        return r.choice(_CHOICES[name])
+        return r.choice(CHOICES[name])
     lo, hi = RANGES[name]
     if isinstance(d, list):
         return [_extreme_in(r, lo, hi, False) for _ in d]

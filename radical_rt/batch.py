@@ -87,7 +87,7 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
     summary = make_summary(sp)
     if truth is not None:
         import msgpack
-        summary["truth"] = _truth_paper_units(msgpack.unpackb(truth, raw=False))
+        summary["truth"] = truth_paper_units(msgpack.unpackb(truth, raw=False))
     if summary_path:
         Path(summary_path).write_text(json.dumps(summary, indent=1) + "\n")
     return summary
@@ -102,7 +102,7 @@ def _write(writer: ArchiveWriter | None, outputs: list[tuple[str, dict]]) -> Non
         writer.write("/" + topic, msg, t_bus=max(float(msg.get("t", 0.0)), 0.0))
 
 
-def _truth_paper_units(msg: dict) -> dict[str, list[float]]:
+def truth_paper_units(msg: dict) -> dict[str, list[float]]:
     return {g: [float(to_paper_units(g, v)) for v in msg[g]] for g in PARAM_GROUPS if g in msg}
 
 

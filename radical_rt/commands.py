@@ -287,7 +287,7 @@ def _table_change(e: Any, where: str, change: Any) -> None:
         change(e.table)
         e.params_changed()
         if getattr(e, "fdi", None) is not None:  # the thresholds must be computable
-            e.fdi._detector(e)
+            e.fdi.detector(e)
     except Exception as exc:  # noqa: BLE001 - whatever failed, the old table comes back
         e.table.active = old
         e.params_changed()

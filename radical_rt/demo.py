@@ -81,12 +81,12 @@ def _end_stream(endpoint: str, timeout: float = 600.0) -> dict:
 def _truth(sim: Path) -> dict | None:
     from replayer.archive import ArchiveReader
 
-    from .batch import _truth_paper_units
+    from .batch import truth_paper_units
     last = None
     with ArchiveReader(str(sim)) as r:
         for _t, _ns, msg in r.iter_messages(topics=["/truth/params"]):
             last = msg
-    return _truth_paper_units(last) if last else None
+    return truth_paper_units(last) if last else None
 
 
 def main(argv: list[str] | None = None) -> int:

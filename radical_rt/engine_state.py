@@ -30,7 +30,7 @@ class EngineState:
     def __init__(self, layout: StateLayout, geometry: Geometry) -> None:
         self.layout, self.geo = layout, geometry
         #: (group, slice of xp) per parameter group, for the per-group outputs
-        self._group_slices = [(g, _psl(layout, g)) for g in PARAM_GROUPS]
+        self._group_slices = [(g, param_slice(layout, g)) for g in PARAM_GROUPS]
         n = self.n_gyro = geometry.n_gyro
         ns = self.ns = layout.n_states
         npar, nr = ns - 3, n - 3
@@ -247,7 +247,7 @@ class EngineState:
         """Rebuild what is derived from the restored arrays (the engine overrides this)."""
 
 
-def _psl(layout: StateLayout, group: str) -> slice:
+def param_slice(layout: StateLayout, group: str) -> slice:
     """Slice of a group inside the parameter vector xp (state index − 3)."""
     s = layout[group]
     return slice(s.start - 3, s.stop - 3)

@@ -22,8 +22,8 @@ from . import fastpath_layout as FL
 from .fdi_hypotheses import idle_kernel_args
 from .flags import Flag
 
-_ST_KIND = {1: "st1", 2: "st2"}
-_ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
+ST_KIND = {1: "st1", 2: "st2"}
+ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
 _MODE_CODE = {"converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
               "degraded": fp.MODE_DEGRADED}  # IO_MODE of radical_rt.fastpath_layout ("init": −1)
 
@@ -58,7 +58,7 @@ class FastRelease:
         if fdi is not None and z > a:  # the kernel's first call copies a..z−1 to the history
             gbuf = fdi.gbuf
             gbuf.reserve(z - a, self.n_gyro)
-            g_f, g_i, g_b, g_end = gbuf._f, gbuf._i, gbuf._b, gbuf.end
+            g_f, g_i, g_b, _i0, g_end = gbuf.blocks()
         else:
             g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
         pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_clock_I,
@@ -167,7 +167,7 @@ class FastRelease:
                 fdi.on_tracker(j, t_epoch, quats[r], head[1])
             if not updated:
                 continue
-            kind = _ST_KIND[j]
+            kind = ST_KIND[j]
             if consider:
                 self.counters[kind + "_consider"] += 1
             if status:
@@ -242,7 +242,7 @@ class FastRelease:
             self._tracker_update(j, t_epoch, q_meas, n_stars)
             self._apply_correction()
         elif reason == fp.R_VEC_STATUS:
-            bit = _ST_EDITED_BIT[j]
+            bit = ST_EDITED_BIT[j]
             self.flags = (self.flags & ~bit) | (0 if used else bit)
             self._apply_correction()
         elif reason == fp.R_NUMERIC_FOLD:

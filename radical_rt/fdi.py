@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -68,6 +68,20 @@ WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gate
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
 
 # ----------------------------------------------------------------------------- the monitor
+class Reconfiguration(NamedTuple):
+    """The engine state an isolation hands to ``Engine.apply_isolation``: the UD factors U (ns, ns)
+    and d (ns,), the parameters xp (ns − 3,) [internal units], q_body_from_inertial (4,) and the
+    body rate omega (3,) [rad/s] of the winning hypothesis, and dt_noise [s], the time since the
+    snapshot over which the parameter process noise is added."""
+
+    U: np.ndarray
+    d: np.ndarray
+    xp: np.ndarray
+    q: np.ndarray
+    omega: np.ndarray
+    dt_noise: float
+
+
 class FaultMonitor:
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
     (``fdi_*``, :mod:`radical_rt.params`); defaults apply when a name is missing."""
@@ -110,7 +124,7 @@ class FaultMonitor:
     def enabled(self, eng) -> bool:
         return bool(self._p(eng, "enabled", True))
 
-    def _detector(self, eng) -> ParityDetector:
+    def detector(self, eng) -> ParityDetector:
         t_sum = eng.si.parity_window * SIRU_PERIOD_S
         key = (float(self._p(eng, "false_alarm_per_hr", 1e-3)), t_sum,
                float(self._p(eng, "guard_ratio", 4.0)))
@@ -162,7 +176,7 @@ class FaultMonitor:
         z = float(self._z[0] - h @ eng.dx)
         if not (s2 > 0.0 and noise > 0.0 and math.isfinite(z)):
             return
-        det = self._detector(eng)
+        det = self.detector(eng)
         nu, rho = z / math.sqrt(s2), s2 / noise
         t1 = float(eng.t)
         t0 = t1 - float(eng.acc_f[2])  # the sum's first sample (duration of the sum)
@@ -405,8 +419,8 @@ class FaultMonitor:
 
     def _reconfigure(self, eng, bank: HypothesisBank, h: int, gyro: int) -> None:
         """Exclude ``gyro``; calibration and its covariance back to the pre-fault snapshot (plus the
-        parameter process noise since), attitude and cross-covariance from the winning filter."""
-        eng.excluded[gyro] = True
+        parameter process noise since), attitude and cross-covariance from the winning filter.
+        The FDI computes the state; the engine applies it (``Engine.apply_isolation``)."""
         ns = eng.ns
         P = np.empty((ns, ns))
         q, omega, Ptt, Ptp = bank.final_state(eng, self.gbuf, h)
@@ -416,20 +430,11 @@ class FaultMonitor:
         P[3:, 3:] = bank.Ppp
         U, d = np.eye(ns), np.ones(ns)
         if ud.factor_ud(P, U, d) == 0 and np.all(d > 0):
-            eng.U[:, :] = U
-            eng.d[:] = d
-            eng.xp[:] = bank.xp
-            eng.q[:] = q
-            eng.omega[:] = omega
-            dt = max(eng.t - bank.snap.t, 0.0)
-            eng._check(ud.add_diagonal_noise(eng.U, eng.d, eng.param_idx,
-                                             eng.q_params * dt, eng.ws.a))
+            state = Reconfiguration(U=U, d=d, xp=bank.xp, q=q, omega=omega,
+                                    dt_noise=max(eng.t - bank.snap.t, 0.0))
         else:  # keep the engine's own covariance, restart the attitude from the trackers
-            eng.warm_start(bump=False)
-        eng.dx[:] = 0.0
-        eng.parity_queue.clear()
-        eng._reset_parity()
-        eng._refresh()
+            state = None
+        eng.apply_isolation(gyro, state)
         self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
 
     def compile_bank(self, eng) -> bool:
@@ -481,7 +486,7 @@ class FaultMonitor:
         self.snaps = deque(Snapshot(**s) for s in st["snaps"])
         self._th_key, self.det = None, None
         if st["det"] is not None:
-            self._detector(eng).set_state(st["det"])
+            self.detector(eng).set_state(st["det"])
         self.bank = None
         if st["bank"] is not None:
             bs = dict(st["bank"])
@@ -515,5 +520,5 @@ def _f(x: float) -> float | None:
 
 
 __all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",
-           "ParityDetector", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
+           "ParityDetector", "Reconfiguration", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
            "cusum_threshold", "thresholds"]

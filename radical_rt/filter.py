@@ -25,9 +25,9 @@ import math
 import numpy as np
 
 from . import ud
-from .engine_state import EngineState, _psl
+from .engine_state import EngineState, param_slice
 from .excitation import ExcitationMonitor
-from .fastpath_glue import _ST_EDITED_BIT, _ST_KIND, FastRelease
+from .fastpath_glue import ST_EDITED_BIT, ST_KIND, FastRelease
 from .fdi import FaultMonitor
 from .flags import Flag
 from .geometry import Geometry
@@ -52,7 +52,7 @@ class Engine(FastRelease, EngineState):
         geometry = geometry or Geometry()
         super().__init__(StateLayout(geometry.n_gyro, latency=True), geometry)
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
-        self._phi_p = _psl(self.layout, "phi2")  # φ2 inside xp
+        self._phi_p = param_slice(self.layout, "phi2")  # φ2 inside xp
         self._phi_col, self._lat_col = self.layout["phi2"].start, self.layout["lat"].start
         self._rate2 = 0.0  # |ω̂|² at the last tracker update [rad²/s²]
         self._views: dict[int, tuple[np.ndarray, ...]] = {}
@@ -428,6 +428,28 @@ class Engine(FastRelease, EngineState):
         if status != 0:
             self._numeric("sense-axis geometry singular")
 
+    def apply_isolation(self, gyro: int, state) -> None:
+        """Apply the FDI's isolation of ``gyro`` (radical_rt.fdi): exclude it; with a
+        :class:`radical_rt.fdi.Reconfiguration` ``state``, take its U, d, xp, q, omega and add
+        the parameter process noise over its dt_noise; with None keep the covariance and restart
+        the attitude from the trackers (warm start). Then the window's correction and parity sums
+        are void and the geometry is rebuilt over the remaining gyros."""
+        self.excluded[gyro] = True
+        if state is not None:
+            self.U[:, :] = state.U
+            self.d[:] = state.d
+            self.xp[:] = state.xp
+            self.q[:] = state.q
+            self.omega[:] = state.omega
+            self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
+                                              self.q_params * state.dt_noise, self.ws.a))
+        else:
+            self.warm_start(bump=False)
+        self.dx[:] = 0.0
+        self.parity_queue.clear()
+        self._reset_parity()
+        self._refresh()
+
     # ---------------------------------------------------------------- tracker events
     def tracker(self, j: int, t_epoch: float, q_meas, n_stars: int, valid: bool) -> bool:
         """Star tracker j (1 or 2) sample at epoch t_epoch (gyro time line), reference path
@@ -480,7 +502,7 @@ class Engine(FastRelease, EngineState):
         if j == 2 and t_epoch - self.last_valid_st.get(1, -math.inf) < self.si.st_stale_s:
             return False  # prefer ST1 as long as it is alive
         R_nom, use_phi = self._mounting(j)
-        phi = self.xp[_psl(self.layout, "phi2")]
+        phi = self.xp[param_slice(self.layout, "phi2")]
         self.q[:] = quat_from_tracker(np.asarray(q_meas, float), R_nom, phi, use_phi)
         sig_body = np.abs(R_nom.T) @ (self._tracker_sigma(n_stars) * self.si.att_init_scale)
         P0 = np.diag(sig_body**2)
@@ -511,7 +533,7 @@ class Engine(FastRelease, EngineState):
 
     def _tracker_update(self, j: int, t_epoch: float, q_meas, n_stars: int) -> bool:
         H, R_nom = self._tracker_rows(j, t_epoch, q_meas)
-        kind = _ST_KIND[j]
+        kind = ST_KIND[j]
         rdiag, rmin = self._tracker_var(n_stars)
         sig_t = self.timing_sigma()
         # |R ω̂|² = |ω̂|²: attitude error per second of epoch error, tracker axes [rad/s]
@@ -529,7 +551,7 @@ class Engine(FastRelease, EngineState):
             used = self._correlated_update(kind, H, self.r3, R, consider)
         else:
             used = self._vector_update(kind, H, self.r3, rdiag, self.si.gate_st_nis)
-        bit = _ST_EDITED_BIT[j]
+        bit = ST_EDITED_BIT[j]
         self.flags = (self.flags & ~bit) | (0 if used else bit)
         return used
 

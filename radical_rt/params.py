@@ -107,7 +107,8 @@ class Params:
 
 GROUP_BUMP = {"b": "bump_b_deg_hr", "lam": "bump_lam_ppm", "mu": "bump_mu_ppm",
               "du": "bump_du_arcsec", "dv": "bump_dv_arcsec", "phi2": "bump_phi2_arcsec"}
-_CHOICES = {"init_var_rule": tuple(INIT_VAR_RULES), "bump_mode": ("add", "scale")}
+#: the allowed values of the string-valued parameters
+CHOICES = {"init_var_rule": tuple(INIT_VAR_RULES), "bump_mode": ("add", "scale")}
 _LIST_LEN = {"bump_phi2_arcsec": 3}
 
 
@@ -147,8 +148,8 @@ def _check_value(name: str, value: Any, default: Any, n_gyro: int) -> Any:
             raise ParamError(f"{name}: expected true/false, got {value!r}")
         return value
     if isinstance(default, str):
-        if not isinstance(value, str) or value not in _CHOICES.get(name, (value,)):
-            raise ParamError(f"{name}: must be one of {_CHOICES[name]}, got {value!r}")
+        if not isinstance(value, str) or value not in CHOICES.get(name, (value,)):
+            raise ParamError(f"{name}: must be one of {CHOICES[name]}, got {value!r}")
         return value
     if isinstance(default, list):
         n = _LIST_LEN.get(name, n_gyro)
@@ -187,7 +188,7 @@ def ranges_table() -> str:
         if isinstance(d, bool):
             rng = "true / false"
         elif isinstance(d, str):
-            rng = " / ".join(_CHOICES[f.name])
+            rng = " / ".join(CHOICES[f.name])
         else:
             lo, hi = RANGES[f.name]
             rng = f"[{lo:g}, {hi:g}]" + (" each" if isinstance(d, list) else "")

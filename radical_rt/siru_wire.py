@@ -45,7 +45,7 @@ SPAN_PER_SAMPLE_S = 0.02  # allowance per sample of a siru batch (two nominal 10
 
 
 @kernel
-def _be(buf, p, nbytes):
+def be_uint(buf, p, nbytes):
     """Big-endian unsigned integer of nbytes at buf[p] (uint8 array) as int64 bits (uint64)."""
     v = np.uint64(0)
     for i in range(nbytes):
@@ -62,9 +62,9 @@ def _array_len(buf, p, n):
     if 0x90 <= b <= 0x9F:
         return b - 0x90, p + 1
     if b == 0xDC and p + 3 <= n:
-        return np.int64(_be(buf, p + 1, 2)), p + 3
+        return np.int64(be_uint(buf, p + 1, 2)), p + 3
     if b == 0xDD and p + 5 <= n:
-        return np.int64(_be(buf, p + 1, 4)), p + 5
+        return np.int64(be_uint(buf, p + 1, 4)), p + 5
     return -1, p
 
 
@@ -75,15 +75,15 @@ def _number(buf, p, n):
         return False, 0.0, p
     b = buf[p]
     if b == 0xCB and p + 9 <= n:
-        return True, np.uint64(_be(buf, p + 1, 8)).view(np.float64), p + 9
+        return True, np.uint64(be_uint(buf, p + 1, 8)).view(np.float64), p + 9
     if b == 0xCA and p + 5 <= n:
-        return True, np.float64(np.uint32(_be(buf, p + 1, 4)).view(np.float32)), p + 5
-    ok, iv, q = _integer(buf, p, n)
+        return True, np.float64(np.uint32(be_uint(buf, p + 1, 4)).view(np.float32)), p + 5
+    ok, iv, q = read_int(buf, p, n)
     return ok, np.float64(iv), q
 
 
 @kernel
-def _integer(buf, p, n):
+def read_int(buf, p, n):
     """An integer at p that fits int64: (ok, value, next position)."""
     if p >= n:
         return False, 0, p
@@ -96,7 +96,7 @@ def _integer(buf, p, n):
         w = 1 << (b - 0xCC)
         if p + 1 + w > n:
             return False, 0, p
-        v = _be(buf, p + 1, w)
+        v = be_uint(buf, p + 1, w)
         if v > np.uint64(9223372036854775807):
             return False, 0, p
         return True, np.int64(v), p + 1 + w
@@ -104,7 +104,7 @@ def _integer(buf, p, n):
         w = 1 << (b - 0xD0)
         if p + 1 + w > n:
             return False, 0, p
-        v = np.int64(_be(buf, p + 1, w))
+        v = np.int64(be_uint(buf, p + 1, w))
         if w < 8 and v >= (np.int64(1) << (8 * w - 1)):
             v -= np.int64(1) << (8 * w)
         return True, v, p + 1 + w
@@ -156,9 +156,9 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
     if 0x80 <= b <= 0x8F:
         n_keys, p = b - 0x80, 1
     elif b == 0xDE and n >= 3:
-        n_keys, p = np.int64(_be(buf, 1, 2)), 3
+        n_keys, p = np.int64(be_uint(buf, 1, 2)), 3
     elif b == 0xDF and n >= 5:
-        n_keys, p = np.int64(_be(buf, 1, 4)), 5
+        n_keys, p = np.int64(be_uint(buf, 1, 4)), 5
     else:
         return -1
     if n_keys != 5:
@@ -170,7 +170,7 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
             return -1
         seen |= key
         if key == 1:  # v
-            ok, v, p = _integer(buf, p, n)
+            ok, v, p = read_int(buf, p, n)
             if not ok or v != 1:
                 return -1
             continue
@@ -194,7 +194,7 @@ def parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap):
                         return -1
                     dtheta[i, j] = x
             else:
-                ok, iv, p = _integer(buf, p, n)
+                ok, iv, p = read_int(buf, p, n)
                 if key == 4:
                     tt[i] = iv
                 else:

@@ -31,7 +31,7 @@ import numpy as np
 
 from ._jit import kernel
 from .packets import MAX_N_STARS, QUAT_NORM_TOL
-from .siru_wire import _be, _integer, outside_window
+from .siru_wire import be_uint, outside_window, read_int
 from .stream_layout import (  # noqa: F401 (re-exported for the stream)
     SI,
     SI_END,
@@ -93,7 +93,7 @@ def _float64(buf, p, n):
     """A msgpack float64 at p: (ok, value, next position); anything else is not ok (the plain
     layout of a tracker message has Python floats, as decode_tracker's short path requires)."""
     if p + 9 <= n and buf[p] == 0xCB:
-        return True, np.uint64(_be(buf, p + 1, 8)).view(np.float64), p + 9
+        return True, np.uint64(be_uint(buf, p + 1, 8)).view(np.float64), p + 9
     return False, 0.0, p
 
 
@@ -115,7 +115,7 @@ def parse_tracker(buf, q_out):
             return False, 0.0, 0, False
         seen |= key
         if key == 1:  # v
-            ok, v, p = _integer(buf, p, n)
+            ok, v, p = read_int(buf, p, n)
             if not ok or v != 1:
                 return False, 0.0, 0, False
         elif key == 2:  # t_bus
@@ -132,7 +132,7 @@ def parse_tracker(buf, q_out):
                     return False, 0.0, 0, False
                 q_out[c] = x
         elif key == 8:  # n_stars
-            ok, ns, p = _integer(buf, p, n)
+            ok, ns, p = read_int(buf, p, n)
             if not ok or ns < 0 or ns > MAX_N_STARS:
                 return False, 0.0, 0, False
         else:  # valid

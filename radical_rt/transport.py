@@ -142,7 +142,7 @@ class _Decl:
         self.bus._remove(self)
 
 
-class _MemInbox:
+class MemInbox:
     """:class:`Inbox` of the in-memory bus: a deque with a condition, bounded in samples
     (``capacity``) and in payload bytes (``capacity_bytes``; None: no byte bound). When it is
     full, the delivering thread waits up to ``wait_s`` for room (back-pressure), then drops and
@@ -290,8 +290,8 @@ class InMemoryTransport:
         return self._declare("sub", key, callback, self if remote_only else None)
 
     def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
-              capacity_bytes: int | None = None) -> _MemInbox:
-        box = _MemInbox(capacity, wait_s, capacity_bytes)
+              capacity_bytes: int | None = None) -> MemInbox:
+        box = MemInbox(capacity, wait_s, capacity_bytes)
         box._decl = self.subscribe(key, box.push, remote_only=True)
         return box
 

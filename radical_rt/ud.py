@@ -126,7 +126,7 @@ def variances_within(U, d, out, limit, start):
 
 
 @kernel
-def _ut_times(U, h, f, n):
+def ut_times(U, h, f, n):
     """f[:n] ← Uᵀh for unit upper U, skipping zero entries of h (sparse star-tracker rows)."""
     f[:n] = 0.0
     for i in range(n):
@@ -143,7 +143,7 @@ def innovation_variance(U, d, h, r, f_work):
     n = d.shape[0]
     if h.shape[0] != n or f_work.shape[0] < n or not _is(U, n, n):
         return np.nan
-    _ut_times(U, h, f_work, n)
+    ut_times(U, h, f_work, n)
     alpha = r
     for j in range(n):
         alpha += d[j] * f_work[j] * f_work[j]
@@ -168,7 +168,7 @@ def bierman_update(U, d, h, r, k_out, f_work, v_work):
         return ERR_NONFINITE, np.nan
     if not r > 0.0:
         return ERR_NOT_POSITIVE, np.nan
-    _ut_times(U, h, f_work, n)
+    ut_times(U, h, f_work, n)
     a_tot = r
     for j in range(n):
         v_work[j] = d[j] * f_work[j]

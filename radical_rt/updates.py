@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import kernel
-from .ud import _ut_times, agee_turner, bierman_update, cholesky_lower
+from .ud import agee_turner, bierman_update, cholesky_lower, ut_times
 
 UPDATE_ACCEPTED = 0
 UPDATE_EDITED = 1
@@ -28,7 +28,7 @@ def innovation_test(U, d, dx, H, z, rdiag, F, S, innov, sig):
         for j in range(n):
             s += H[a, j] * dx[j]
         innov[a] = z[a] - s
-        _ut_times(U, H[a], F[a], n)  # F[a] = Uᵀ h_a (U unit upper triangular; zeros of h skipped)
+        ut_times(U, H[a], F[a], n)  # F[a] = Uᵀ h_a (U unit upper triangular; zeros of h skipped)
     for a in range(m):
         for b in range(m):
             acc = rdiag[a] if a == b else 0.0

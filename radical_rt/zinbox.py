@@ -29,12 +29,12 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from .transport import _MemInbox
+from .transport import MemInbox
 
 log = logging.getLogger("radical.transport")
 
 
-class ZByteInbox(_MemInbox):
+class ZByteInbox(MemInbox):
     """:class:`~radical_rt.transport.Inbox` on a Zenoh callback subscriber, bounded in samples
     and payload bytes (see the module docstring)."""
 
