@@ -179,7 +179,7 @@ def restore(sp: StreamProcessor, state: dict[str, Any], bump: bool = False,
     sp.streams.begin(start, bump_applied(e.si) if bumped else None)
     if new_stream or bump:  # a new stream: forget the read sequence and the clock phase
         sp.clock.reset()
-        sp._begin_stream()
+        sp.begin_stream()
         e.warm_start(bump=bump)
         sp.streams.index = index + 1
         sp.streams.begin("warm", bump_applied(e.si) if bump else None)

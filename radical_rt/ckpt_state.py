@@ -49,7 +49,7 @@ def _arr(a: np.ndarray) -> dict[str, Any]:
 def capture(sp: StreamProcessor) -> dict[str, Any]:
     """The running state of one vehicle's processor (engine, clock, queues, FDI; msgpack-able).
     Call it from the thread that runs ``sp``."""
-    e, gq, tq = sp.engine, sp._gq, sp._tq
+    e, gq, tq = sp.engine, sp.gyro_q, sp.tracker_q
     h, z = gq.head, gq.end
     th, tz = int(tq.si[SI_HEAD]), int(tq.si[SI_END])
     fdi = e.fdi
@@ -212,7 +212,7 @@ def _check_queues(qd: Any, sp: StreamProcessor, plan: Plan) -> None:
         raise cv.CheckpointFieldError("queues.gyro.t: samples must be in time order")
     tr = cv.need(qd, "tracker", "queues")
     ss = cv.array(cv.need(tr, "ss", "queues.tracker"), "queues.tracker.ss", "<f8",
-                  (len(sp._tq.ss),), -T_MAX, T_MAX, finite=False)
+                  (len(sp.tracker_q.ss),), -T_MAX, T_MAX, finite=False)
     si = cv.array(cv.need(tr, "si", "queues.tracker"), "queues.tracker.si", "<i8", (4,),
                   0, cv.INT_MAX)
     r = cv.need(cv.need(tr, "ev_f", "queues.tracker"), "shape", "queues.tracker.ev_f")
@@ -274,7 +274,7 @@ def _check_fdi(f: Any, n: int, sp: StreamProcessor) -> dict[str, Any] | None:
 # ------------------------------------------------------------------------------------ apply
 def apply(sp: StreamProcessor, plan: Plan) -> None:
     """Put a checked plan into ``sp`` (the processor then continues the captured stream)."""
-    e, gq, tq = sp.engine, sp._gq, sp._tq
+    e, gq, tq = sp.engine, sp.gyro_q, sp.tracker_q
     for k, v in plan.engine_arrays.items():
         getattr(e, k)[...] = v
     s = plan.engine
@@ -319,7 +319,7 @@ def apply(sp: StreamProcessor, plan: Plan) -> None:
             sp.packets[name].next_t, sp.packets[name].windows = next_t, windows
     sp.diag.next_t = sch.get("diag_next_t", -math.inf)
     sp.last_reject_t = sch.get("last_reject_t", -math.inf)
-    sp._packet_wake = None
+    sp.packet_wake = None
     f = plan.fdi
     if f is not None and e.fdi is not None and f.get("monitor") is not None:
         e.fdi.set_state(e, f["monitor"])  # history, snapshots, alarm and bank: it continues

@@ -56,7 +56,7 @@ def input_seen(node, v, now: float) -> None:
     dt = w.seen(now)
     if dt is not None:
         v.sp.note_link_loss(False, dt)
-        node._publish(v, v.sp.fault_now())
+        node.publish(v, v.sp.fault_now())
         log.warning("%s: input again after %.3g s: link restored", v.name, dt)
 
 
@@ -66,5 +66,5 @@ def check_links(node, now: float) -> None:
         w = v.link
         if w is not None and w.check(now):
             v.sp.note_link_loss(True)
-            node._publish(v, v.sp.fault_now())
+            node.publish(v, v.sp.fault_now())
             log.warning("%s: no input for %.3g s: link lost", v.name, now - w.last_mono)

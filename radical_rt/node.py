@@ -111,10 +111,10 @@ class Vehicle:
         return self.node.write_checkpoint()
 
     def end_stream(self, next_start: str | None) -> dict[str, Any]:
-        self.node._publish(self, self.sp.end_stream(None))
+        self.node.publish(self, self.sp.end_stream(None))
         summary = make_summary(self.sp)
         if next_start is not None:
-            self.node._publish(self, self.sp.end_stream(next_start))
+            self.node.publish(self, self.sp.end_stream(next_start))
         return {"summary": summary, "next": next_start or "none"}
 
     def node_info(self) -> dict[str, Any]:
@@ -431,9 +431,9 @@ class FilterNode:
             v.sp.note_reported_loss(lost)
             log.warning("%s: end of stream: %d input message(s) sent were never received",
                         v.name, lost)
-        self._publish(v, v.sp.end_stream(None, source=source) + v.sp.fault_now())
+        self.publish(v, v.sp.end_stream(None, source=source) + v.sp.fault_now())
         if nxt != "none":
-            self._publish(v, v.sp.end_stream(nxt))
+            self.publish(v, v.sp.end_stream(nxt))
         v.holding = False
 
     def _idle_release(self) -> None:
@@ -446,7 +446,7 @@ class FilterNode:
             if v.holding and now - v.last_input_mono >= self.idle_release_s:
                 v.holding = False
                 v.idle_releases += 1
-                self._publish(v, v.sp.end_stream(None))
+                self.publish(v, v.sp.end_stream(None))
                 log.info("%s: no input for %.3g s: held samples released", v.name,
                          now - v.last_input_mono)
 
@@ -482,13 +482,13 @@ class FilterNode:
             outs = v.sp.take_outputs()
         v.fed[topic] += 1
         if self.timing is None:
-            self._publish(v, outs)
+            self.publish(v, outs)
             return
         t_fed = time.monotonic_ns()
-        self._publish(v, outs)
+        self.publish(v, outs)
         self.timing.record(v.name, topic, t_recv, t_start, t_fed, time.monotonic_ns(), outs)
 
-    def _publish(self, v: Vehicle, outs: list[tuple[str, dict[str, Any]]]) -> None:
+    def publish(self, v: Vehicle, outs: list[tuple[str, dict[str, Any]]]) -> None:
         for topic, msg in outs:
             if topic == "diag":
                 msg = {**msg, "node": v.node_info()}

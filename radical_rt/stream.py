@@ -70,40 +70,40 @@ class StreamProcessor(StreamGuards):
         self.reorder_slack_s, self.reject_hold_s = reorder_slack_s, reject_hold_s
         self.diag = PacketSpec("diag", [], period_s=diag_period_s)
         self.rejected: dict[str, int] = defaultdict(int)
-        self._tq = TrackerQueue()  # waiting tracker samples and the shared stream times
+        self.tracker_q = TrackerQueue()  # waiting tracker samples and the shared stream times
         self._init_guards(**guard)
         self.temps: dict[str, float] = {}
         self.last_reject_t = -math.inf
         self._out: list[tuple[str, dict[str, Any]]] = []
         self._last_flags = None
-        self._gq = GyroQueue(engine.n_gyro)
+        self.gyro_q = GyroQueue(engine.n_gyro)
         self._wire = SiruWire(engine.n_gyro)  # compiled decoding of plain siru messages
         self._pred = np.zeros(9)  # the release kernel's prediction for sample packets (now())
         self.streams = StreamLog()  # stream index (``stream`` of every output) and records
-        self._begin_stream()
+        self.begin_stream()
         engine.listener = self._on_window
         engine.wake_source = self._wake
         # the clock's reconstruction uncertainty enters the tracker noise as (ω̂·σ_t)²
         engine.timing_sigma_source = lambda: self.clock.tag_error_sigma_s
 
     # ---------------------------------------------------------------- input side
-    def _begin_stream(self) -> None:
+    def begin_stream(self) -> None:
         self._guard_begin_stream()
-        self._tq.clear()  # t_max, released_t and the trackers' last times: −inf
+        self.tracker_q.clear()  # t_max, released_t and the trackers' last times: −inf
         self.last_t: dict[str, float] = {}  # temp (siru's and the trackers' are in the queue's ss)
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
         self._span_open = True  # the stream's first input time is still to be noted
         self._new_sample = False
-        self._gq.clear()
+        self.gyro_q.clear()
 
     # newest t_bus of any input [s]; epoch up to which samples count as released [s]; late
     # tracker samples dropped (shared with the compiled intake, radical_rt.tracker_queue)
-    t_max = property(lambda self: float(self._tq.ss[SS_T_MAX]),
-                     lambda self, v: self._tq.ss.__setitem__(SS_T_MAX, v))
-    released_t = property(lambda self: float(self._tq.ss[SS_RELEASED]),
-                          lambda self, v: self._tq.ss.__setitem__(SS_RELEASED, v))
-    late_dropped = property(lambda self: int(self._tq.si[SI_LATE]),
-                            lambda self, v: self._tq.si.__setitem__(SI_LATE, v))
+    t_max = property(lambda self: float(self.tracker_q.ss[SS_T_MAX]),
+                     lambda self, v: self.tracker_q.ss.__setitem__(SS_T_MAX, v))
+    released_t = property(lambda self: float(self.tracker_q.ss[SS_RELEASED]),
+                          lambda self, v: self.tracker_q.ss.__setitem__(SS_RELEASED, v))
+    late_dropped = property(lambda self: int(self.tracker_q.si[SI_LATE]),
+                            lambda self, v: self.tracker_q.si.__setitem__(SI_LATE, v))
 
     def feed(self, topic: str, payload: bytes | dict) -> list[tuple[str, dict[str, Any]]]:
         """Take one input message (topic without the leading slash); return outputs produced."""
@@ -149,7 +149,7 @@ class StreamProcessor(StreamGuards):
             self.streams.seen(t)
 
     def _check_time(self, topic: str, t: float) -> None:
-        ss = self._tq.ss
+        ss = self.tracker_q.ss
         t_ref, w = float(ss[SS_T_MAX]), float(ss[SS_WINDOW])
         if math.isfinite(t_ref) and (t - t_ref > w or t_ref - t > w):
             raise TimeJump(topic, t, t, t_ref)
@@ -166,7 +166,7 @@ class StreamProcessor(StreamGuards):
         queue by one kernel call (:meth:`radical_rt.siru_wire.SiruWire.intake`); any other layout
         through msgpack and :func:`radical_rt.packets.decode_siru`, then the same kernel's steps
         (:meth:`radical_rt.siru_wire.SiruWire.accept`)."""
-        ss, gq = self._tq.ss, self._gq
+        ss, gq = self.tracker_q.ss, self.gyro_q
         status = WIRE_FALLBACK
         prev = float(ss[SS_LAST_SIRU])
         if isinstance(payload, (bytes, bytearray, memoryview)):
@@ -202,7 +202,7 @@ class StreamProcessor(StreamGuards):
         :func:`radical_rt.packets.decode_tracker`), with the stream's release test. Returns
         whether that test is done (the caller's deferred release then has nothing to do)."""
         j = 1 if topic == "st1" else 2
-        e, gq, tq = self.engine, self._gq, self._tq
+        e, gq, tq = self.engine, self.gyro_q, self.tracker_q
         si = e.si
         plain = isinstance(payload, (bytes, bytearray, memoryview))
         decoded = None
@@ -258,7 +258,7 @@ class StreamProcessor(StreamGuards):
         late-tracker test). Nothing observable happens in such a release — no window closes, so
         no output — and the next release processes the same events in the same order; the
         stream defers on tracker and temperature messages, never before sample outputs."""
-        gq, e, tq, pred = self._gq, self.engine, self._tq, self._pred
+        gq, e, tq, pred = self.gyro_q, self.engine, self.tracker_q, self._pred
         pred[0] = 0.0  # no prediction from this release (yet)
         a = gq.head
         plan, e1, z = release_plan(tq.ss, tq.si, tq.ev_f, gq.t, a, gq.end, watermark,
@@ -279,7 +279,7 @@ class StreamProcessor(StreamGuards):
         self._discard_candidates()  # held jump candidates never confirmed: rejected
         out = self.clock.flush()
         if len(out.t):
-            self._gq.push(out)
+            self.gyro_q.push(out)
         self._release(math.inf)
         if self.engine.att_valid:
             self.engine.flush_parity()
@@ -297,11 +297,11 @@ class StreamProcessor(StreamGuards):
             else:
                 self.engine.warm_start(bump=True)
                 log.begin("warm", bump_applied(self.engine.si))
-            self._begin_stream()
+            self.begin_stream()
             for spec in self.packets.values():
                 spec.next_t = -math.inf
             self.diag.next_t = -math.inf
-            self._packet_wake = None
+            self.packet_wake = None
         return self.take_outputs()
 
     # ---------------------------------------------------------------- outputs
@@ -335,9 +335,9 @@ class StreamProcessor(StreamGuards):
         (−inf: now). Earlier is always safe (the hook then finds nothing to do)."""
         if self.flags != self._last_flags:
             return -math.inf, -math.inf
-        wake_t = self._packet_wake
+        wake_t = self.packet_wake
         if wake_t is None:
-            wake_t = self._packet_wake = self._next_packet_t()
+            wake_t = self.packet_wake = self._next_packet_t()
         wake_e = self._guard_wake()  # a held flag's hold ends
         if self._last_flags & _INPUT_REJECTED and self.t_max != self.last_reject_t:
             wake_e = min(wake_e, self.last_reject_t + self.reject_hold_s - 1e-6)  # the hold ends
@@ -355,7 +355,7 @@ class StreamProcessor(StreamGuards):
         return wake_t
 
     # kept until the schedule can change: _on_window, end_stream, new packets
-    _packet_wake: float | None = None
+    packet_wake: float | None = None
 
     @property
     def packets(self) -> dict[str, PacketSpec]:
@@ -366,13 +366,13 @@ class StreamProcessor(StreamGuards):
     @packets.setter
     def packets(self, specs: dict[str, PacketSpec]) -> None:
         self._packets = specs
-        self._packet_wake = None
+        self.packet_wake = None
         # the sample-triggered packets and their keys (built after each SIRU message)
         self._sample_specs = [(f"tlm/{n}", s) for n, s in specs.items() if s.trigger == "sample"]
         self._sample_packets = bool(self._sample_specs)
 
     def _on_window(self, t: float) -> None:
-        self._packet_wake = None  # the packets' due() below moves their schedule
+        self.packet_wake = None  # the packets' due() below moves their schedule
         if self.flags != self._last_flags:
             self._emit_fault(t)
         memo: dict[str, Any] = {}  # the packets and the diag of this close read one state
@@ -413,7 +413,7 @@ class StreamProcessor(StreamGuards):
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
             return _now_fields(e.t, q, omega)
-        gq = self._gq
+        gq = self.gyro_q
         # the newest read, held back by the clock's look-ahead, taken as the next sample
         clock_I, clock_F = self.clock.state_arrays()
         t = predict_pending(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, self.t_now, clock_I,

@@ -32,7 +32,7 @@ MAX_PAYLOAD_BYTES = 1 << 20  # a siru batch of MAX_SIRU_BATCH samples is ≈ 0.6
 
 
 class StreamGuards:
-    """Mixin: needs the stream's ``_tq``, ``engine``, ``rejected``, ``_reject``, ``feed``,
+    """Mixin: needs the stream's ``tracker_q``, ``engine``, ``rejected``, ``_reject``, ``feed``,
     ``end_stream``, ``_out`` and ``t_max``."""
 
     def _init_guards(self, time_window_s: float = 2.0, jump_confirm_n: int = 5,
@@ -53,7 +53,7 @@ class StreamGuards:
                                 max_bytes=4 * jump_confirm_n * max_payload_bytes)
         self._conflict = TrackerConflict(tracker_min_interval_s, conflict_n, span_s=conflict_hold_s,
                                          hold_s=conflict_hold_s)
-        self._tq.ss[SS_WINDOW] = time_window_s
+        self.tracker_q.ss[SS_WINDOW] = time_window_s
         self.input_gap_s, self.max_payload_bytes = input_gap_s, max_payload_bytes
         self.max_tracker_rows = max_tracker_rows
         self._gyro_gap, self._input_gap = HeldFlag(gap_hold_s), HeldFlag(gap_hold_s)
@@ -67,13 +67,13 @@ class StreamGuards:
     @property
     def time_window_s(self) -> float:
         """The plausibility window W [s] (inf: no time sanity check; set it to change it)."""
-        return float(self._tq.ss[SS_WINDOW])
+        return float(self.tracker_q.ss[SS_WINDOW])
 
     @time_window_s.setter
     def time_window_s(self, w: float) -> None:
         if not w > 0:
             raise ValueError(f"the time window must be > 0 s, got {w!r}")
-        self._tq.ss[SS_WINDOW] = self._jumps.window_s = w
+        self.tracker_q.ss[SS_WINDOW] = self._jumps.window_s = w
 
     def _guard_begin_stream(self) -> None:
         self._jumps.held = []
@@ -96,7 +96,7 @@ class StreamGuards:
                 outs = self.feed(t, p)
                 self._out.extend(outs)
             return
-        ss = self._tq.ss
+        ss = self.tracker_q.ss
         w, ss[SS_WINDOW] = ss[SS_WINDOW], math.inf  # a gap: as if there were no window
         try:
             for t, p in msgs:
@@ -124,7 +124,7 @@ class StreamGuards:
         c = self._conflict
         c.last_seen[j] = max(c.last_seen[j], t)
         if c.note(j, t):  # raised now: the samples of tracker j still waiting are not used
-            tq = self._tq
+            tq = self.tracker_q
             h, e = int(tq.si[SI_HEAD]), int(tq.si[SI_END])
             for r in range(h, e):
                 if tq.ev_i[r, 0] == j and tq.ev_i[r, 2]:
@@ -137,7 +137,7 @@ class StreamGuards:
         t = decode_tracker(unpack(payload))[0]
         if not c.active(j, max(t, c.last_seen[j])) and t > c.last_seen[j]:
             c.until[j] = -math.inf  # the conflict is over: back to the normal intake
-            self._tq.ss[SS_LAST + j] = max(float(self._tq.ss[SS_LAST + j]), c.last_seen[j])
+            self.tracker_q.ss[SS_LAST + j] = max(float(self.tracker_q.ss[SS_LAST + j]), c.last_seen[j])
             return False
         if c.close(j, t, c.last_seen[j]) or t <= c.last_seen[j]:
             c.note(j, t)

@@ -19,15 +19,9 @@ PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
 #: (module path, expression) of the private accesses left (same-class helpers included)
 KNOWN = {
     ("monitors/fox_export.py", "reader._metadata"),
-    ("radical_rt/checkpoint.py", "sp._begin_stream"),
-    ("radical_rt/ckpt_state.py", "sp._gq"),
-    ("radical_rt/ckpt_state.py", "sp._packet_wake"),
-    ("radical_rt/ckpt_state.py", "sp._tq"),
     ("radical_rt/cli.py", "args._run"),
     ("radical_rt/clock.py", "fresh._F"),  # the same class
     ("radical_rt/clock.py", "fresh._I"),  # the same class
-    ("radical_rt/link_watch.py", "node._publish"),
-    ("radical_rt/node.py", "self.node._publish"),
     ("radical_rt/node_cli.py", "h._radical_cli"),
     ("radical_rt/transport.py", "box._decl"),
     ("radical_rt/transport.py", "self.bus._add"),

@@ -93,13 +93,13 @@ def test_link_loss_across_router_restart(archive):
     nt = ZenohTransport("peer", connect=[ep])
     node = FilterNode(nt, build_processors(["lr"]), stale_after_s=0.5)
     faults: list[int] = []
-    publish = node._publish
+    publish = node.publish
 
     def spy(v, outs):  # the fault messages the node publishes (the link to a listener is down)
         faults.extend(m["flags"] for t, m in outs if t == "fault")
         publish(v, outs)
 
-    node._publish = spy
+    node.publish = spy
     node.start()
     import zenoh
     ps = zenoh.open(zconfig.make_config("client", connect=[ep]))

@@ -179,4 +179,4 @@ def test_stream_counts_a_rejected_message_as_before():
     sp = StreamProcessor(Engine())
     sp.feed("siru", msgpack.packb(_ok_map(dtheta=[[0.1] * 4, [math.nan] * 4])))
     assert dict(sp.rejected) == {"nonfinite": 1}
-    assert len(sp._gq) == 0 and sp.clock.counters.get("samples", 0) == 0
+    assert len(sp.gyro_q) == 0 and sp.clock.counters.get("samples", 0) == 0

@@ -247,11 +247,11 @@ def test_stream_grows_the_queue_for_waiting_samples(as_map):
     from radical_rt.filter import Engine
     from radical_rt.stream import StreamProcessor
     sp = StreamProcessor(Engine(), reorder_slack_s=1e4)  # nothing becomes due
-    sp._tq = TrackerQueue(capacity=1)
-    sp._begin_stream()
+    sp.tracker_q = TrackerQueue(capacity=1)
+    sp.begin_stream()
     for k in range(40):
         m = _plain(t_bus=1000.0 + 0.1 * k)
         sp.feed("st1" if k % 2 else "st2", m if as_map else msgpack.packb(m))
-    assert len(sp._tq) == 40 and sp._tq.ev_f.shape[0] >= 40 and not sp.rejected
-    epochs = sp._tq.ev_f[:40, 0]
+    assert len(sp.tracker_q) == 40 and sp.tracker_q.ev_f.shape[0] >= 40 and not sp.rejected
+    epochs = sp.tracker_q.ev_f[:40, 0]
     assert np.all(np.diff(epochs) > 0)
