@@ -14,12 +14,12 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import MemNode, archives, feed_archive, input_messages  # noqa: F401
 
 from radical_rt import checkpoint as ckpt
 from radical_rt import clock_layout as L
 from radical_rt.batch import make_processor
 from radical_rt.node import build_processors
+from support.node import MemNode, feed_archive, input_messages
 
 REPO = Path(__file__).resolve().parents[1]
 

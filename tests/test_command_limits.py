@@ -8,11 +8,11 @@ import math
 import time
 
 import pytest
-from test_node_support import MemNode, archives, feed_archive, input_messages  # noqa: F401
 
 from radical_rt.batch import make_processor
 from radical_rt.flags import Flag
 from radical_rt.params import Params, ParamTable
+from support.node import MemNode, feed_archive, input_messages
 
 
 @pytest.fixture(scope="module")

@@ -36,19 +36,10 @@ from radical_rt.model import internal_from_contract
 from radical_rt.state import PARAM_GROUPS
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
+from support.scenarios import scenario
 
-MOVES = [("x", 10.0), ("x", -20.0), ("x", 10.0), ("z", 10.0), ("z", -20.0), ("z", 10.0),
-         ("y", 30.0), ("y", -60.0), ("y", 30.0)]
 Z999 = 3.2905  # two-sided 99.9 % normal quantile
 CHI2_24_999 = 51.179
-
-
-def scenario(truth: str) -> str:
-    lines = ['base = "2006216"', f'name = "ci-short-{truth}"', "duration_s = 1500.0",
-             "[truth]", f'source = "{truth}"', "[maneuver]", "start_s = 60.0"]
-    for axis, angle in MOVES:
-        lines += ["[[maneuver.moves]]", f'axis = "{axis}"', f"angle_deg = {angle}", "hold_s = 60.0"]
-    return "\n".join(lines) + "\n"
 
 
 def run(path):

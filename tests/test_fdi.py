@@ -20,7 +20,6 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import chi2
-from test_node_support import MemNode, feed_archive, input_messages
 
 from perf.fdi_table import FAULT_T, KINDS, SPLIT_T, Run, evaluate, fault_toml, synth
 from radical_rt.batch import process
@@ -34,6 +33,7 @@ from radical_rt.fdi import (
     thresholds,
 )
 from radical_rt.flags import Flag, flag_names
+from support.node import MemNode, feed_archive, input_messages
 
 
 # ------------------------------------------------------------------------------ detector math

@@ -11,12 +11,12 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import input_messages
 
 from perf.fdi_table import fault_toml, synth
 from radical_rt import checkpoint as ckpt
 from radical_rt.batch import make_processor
 from radical_rt.node import build_processors
+from support.node import input_messages
 
 KEYS = ("gyro", "t_alarm", "t_isolated", "t_onset_est", "t_snapshot", "test", "llr_margin")
 

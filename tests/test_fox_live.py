@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_node_support import input_messages, make_archive, wait_for
 
 from radical_rt import zconfig
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import ZenohTransport
+from support.node import input_messages, make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh
 ROOT = Path(__file__).resolve().parents[1]

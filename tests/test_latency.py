@@ -13,13 +13,13 @@ import msgpack
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_engine_convergence import scenario
 
 from radical_rt.batch import INPUTS, make_processor
 from radical_rt.filter import Engine
 from radical_rt.state import PARAM_GROUPS
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
+from support.scenarios import scenario
 
 OFFSET_S = 0.020
 

@@ -12,7 +12,6 @@ import time
 
 import msgpack
 import pytest
-from test_node_support import MemNode, input_messages, make_archive, wait_for
 
 from radical_rt import zconfig
 from radical_rt.eos import make_eos
@@ -20,6 +19,7 @@ from radical_rt.flags import Flag
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import ZenohTransport
 from replayer.replay import replay
+from support.node import MemNode, input_messages, make_archive, wait_for
 
 LINK = int(Flag.LINK_LOSS)
 

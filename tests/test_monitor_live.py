@@ -10,13 +10,13 @@ from pathlib import Path
 
 import msgpack
 import pytest
-from test_monitor_tui import large_packet
 
 from monitors.cli import run as cli_run
 from monitors.live import LatestStore, ZenohSource, pick_vehicle
 from radical_rt import zconfig
 from radical_rt.conventions import ARCSEC, DEG_PER_HR
 from radical_rt.flags import Flag
+from support.packets import large_packet
 
 # radical_rt.outpaths: the one output-path policy of every command (argparse types, no engine)
 ALLOWED_RADICAL = {"radical_rt.conventions", "radical_rt.paper_table", "radical_rt.flags",

@@ -24,7 +24,7 @@ from radical_rt import zconfig
 from radical_rt.flags import Flag
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_monitor_tui import large_packet  # noqa: E402
+from support.packets import large_packet  # noqa: E402
 
 pytestmark = pytest.mark.zenoh
 

@@ -9,11 +9,11 @@ import threading
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import MemNode, archives, feed_archive, input_messages  # noqa: F401
 
 from radical_rt import commands
 from radical_rt.checkpoint import read
 from radical_rt.flags import Flag
+from support.node import MemNode, feed_archive, input_messages
 
 
 @pytest.fixture(scope="module")

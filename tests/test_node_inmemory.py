@@ -10,13 +10,6 @@ import random
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import (  # noqa: F401
-    MemNode,
-    archives,
-    batch_ref,
-    feed_archive,
-    input_messages,
-)
 
 from radical_rt import checkpoint as ckpt
 from radical_rt.batch import make_processor, process
@@ -24,6 +17,11 @@ from radical_rt.flags import Flag
 from radical_rt.node import FilterNode, build_processors, warm_up
 from radical_rt.transport import InMemoryBus, InMemoryTransport
 from replayer.archive import ArchiveReader
+from support.node import (
+    MemNode,
+    feed_archive,
+    input_messages,
+)
 
 SEED = 20240607
 SI_KEYS = ("estimate", "sigma")

@@ -13,7 +13,6 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import archives, batch_ref, cmd, input_messages, wait_for  # noqa: F401
 
 from radical_rt import checkpoint as ckpt
 from radical_rt import zconfig
@@ -22,6 +21,7 @@ from radical_rt.cli import main as radical_main
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import ZenohTransport
 from replayer.archive import ArchiveReader
+from support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,10 +17,10 @@ import sys
 
 import numpy as np
 import pytest
-from test_node_support import MemNode
 
 from perf import bench_capacity, bench_latency, bench_startup, live
 from radical_rt.node import LoopTiming
+from support.node import MemNode
 
 
 @pytest.fixture(scope="module")

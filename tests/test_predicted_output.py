@@ -14,7 +14,6 @@ import msgpack
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_engine_convergence import scenario
 
 from radical_rt.batch import INPUTS, make_processor
 from radical_rt.clock import GyroBatch
@@ -23,6 +22,7 @@ from radical_rt.propagate import predict_attitude
 from radical_rt.telemetry import PacketError, parse_packets
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
+from support.scenarios import scenario
 
 
 def test_predict_attitude_matches_filter_propagation():

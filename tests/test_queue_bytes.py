@@ -11,11 +11,11 @@ import time
 
 import msgpack
 import pytest
-from test_node_support import wait_for
 
 from radical_rt import zconfig
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import ZenohTransport
+from support.node import wait_for
 
 pytestmark = pytest.mark.zenoh
 

@@ -10,10 +10,10 @@ import signal
 
 import numpy as np
 import pytest
-from test_node_support import archives, batch_ref, cmd, input_messages, wait_for  # noqa: F401
 from test_node_zenoh import NodeProc, publish, wait_fed
 
 from radical_rt import checkpoint as ckpt
+from support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
 

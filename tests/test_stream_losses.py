@@ -7,10 +7,10 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import MemNode, input_messages, make_archive, wait_for
 
 from radical_rt.batch import make_processor, make_summary, process
 from radical_rt.eos import make_eos
+from support.node import MemNode, input_messages, make_archive, wait_for
 
 SI_KEYS = ("estimate", "sigma")
 

@@ -14,13 +14,13 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import make_archive, wait_for
 
 from radical_rt import zconfig
 from radical_rt.batch import process
 from radical_rt.node import FilterNode, build_processors
 from radical_rt.transport import ZenohTransport
 from replayer.replay import replay
+from support.node import make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,13 +7,13 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from test_node_support import MemNode, archives, feed_archive, input_messages  # noqa: F401
 
 from radical_rt import checkpoint as ckpt
 from radical_rt.batch import make_processor, process
 from radical_rt.eos import decode_eos, make_eos
 from radical_rt.params import ParamTable
 from replayer.archive import ArchiveReader, ArchiveWriter
+from support.node import MemNode, feed_archive, input_messages
 
 OUT_TOPICS = ["/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag"]
 

@@ -11,10 +11,10 @@ import msgpack
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_node_support import input_messages, make_archive
 
 from radical_rt.batch import make_processor, process
 from replayer.archive import ArchiveWriter
+from support.node import input_messages, make_archive
 
 ARCSEC = math.pi / 648000
 

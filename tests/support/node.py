@@ -1,4 +1,6 @@
-"""Shared helpers and fixtures for the node tests (no tests here; imported by test_node_*.py)."""
+"""Shared helpers and fixtures of the node tests: the session archives and batch references
+(fixtures, registered for every test by tests/conftest.py), an in-memory node, command and
+wait helpers."""
 
 from __future__ import annotations
 

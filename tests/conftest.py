@@ -1,0 +1,3 @@
+"""Fixtures shared by every test module (defined in tests/support)."""
+
+from support.node import archives, batch_ref  # noqa: F401 (fixtures)
