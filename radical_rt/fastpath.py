@@ -104,13 +104,16 @@ _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
 MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
-# positions in E of the arrays used by index below (radical_rt.engine_layout.SLOTS is the order)
-(_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _ACC_I, _ACC_F,
- _TH_ACC, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W, _VAR_W, _CONV_VAR,
- _KAPPA_LAST, _INNOV, _SIG, _OMEGA) = (E_INDEX[k] for k in (
+# positions in E of its arrays, by key (radical_rt.engine_layout.SLOTS declares the order once)
+(_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _PAR_Y, _PAR_T,
+ _ACC_I, _ACC_F, _TH_ACC, _OMEGA, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W,
+ _VAR_W, _CONV_VAR, _KAPPA_LAST, _HBUF, _R3, _H_ATT, _H_PHI, _FBUF, _SBUF, _INNOV, _SIG, _F_W,
+ _V_W, _K_W, _ST_SIGMA, _GYRO_MASK, _HWBUF, _ZWBUF, _LBUF) = (E_INDEX[k] for k in (
     "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
-    "Q_aa", "acc_i", "acc_f", "th_acc", "U", "d", "dx", "q_params", "param_idx", "q_dt",
-    "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "innov", "sig", "omega"))
+    "Q_aa", "par_y", "par_t", "acc_i", "acc_f", "th_acc", "omega", "U", "d", "dx", "q_params",
+    "param_idx", "q_dt", "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "Hbuf", "r3",
+    "H_att", "H_phi", "Fbuf", "Sbuf", "innov", "sig", "ws.f", "ws.v", "ws.k", "st_sigma",
+    "gyro_mask", "Hwbuf", "zwbuf", "Lbuf"))
 
 
 @inline_kernel
@@ -173,8 +176,10 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt)
     """Propagate samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status
     (m,) int bits, bridged (m,) bool, var_extra (m,) [rad²]), closing windows on the way, as
     Engine.gyro with an attitude does. Returns (reason R_*, index of the next sample)."""
-    (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
-     acc_f, th_acc, omega) = E[:19]
+    excluded, xp, q, A, W, U_ax, V_ax = E[_EXCLUDED], E[_XP], E[_Q], E[_A], E[_W], E[_UAX], E[_VAX]
+    Minv, Gp, N, Phi_aa, Phi_ap = E[_MINV], E[_GP], E[_N], E[_PHI_AA], E[_PHI_AP]
+    Q_aa, par_y, par_t, acc_i, acc_f = E[_Q_AA], E[_PAR_Y], E[_PAR_T], E[_ACC_I], E[_ACC_F]
+    th_acc, omega = E[_TH_ACC], E[_OMEGA]
     window, arw, gap_s = int(cfg[CFG_PROP_WINDOW]), cfg[CFG_ARW_VAR], cfg[CFG_GYRO_GAP]
     while k < upto:
         if dt[k] > gap_s:
@@ -210,10 +215,11 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     once the attitude is initialized. An invalid sample (not valid, or too few stars) is only
     counted, cnt[CNT_INVALID_ST + j] += 1, with cnt[CNT_UPDATED] = −1 (R_DONE); otherwise
     io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
-    (excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
-     acc_f, th_acc, omega, U, d, dx, q_params, param_idx, q_dt, struct_w, a_w, var_w, conv_var,
-     kappa_last, Hbuf, r3, H_att, H_phi, Fbuf, Sbuf, innov, sig, f_w, v_w, k_w, st_sigma,
-     gyro_mask, Hwbuf, zwbuf, Lbuf) = E
+    xp, q, acc_i, omega, U, d, dx = E[_XP], E[_Q], E[_ACC_I], E[_OMEGA], E[_U], E[_D], E[_DX]
+    a_w, Hbuf, r3, H_att, H_phi = E[_A_W], E[_HBUF], E[_R3], E[_H_ATT], E[_H_PHI]
+    Fbuf, Sbuf, innov, sig = E[_FBUF], E[_SBUF], E[_INNOV], E[_SIG]
+    f_w, v_w, k_w, st_sigma, gyro_mask = E[_F_W], E[_V_W], E[_K_W], E[_ST_SIGMA], E[_GYRO_MASK]
+    Hwbuf, zwbuf, Lbuf = E[_HWBUF], E[_ZWBUF], E[_LBUF]
     cnt[CNT_UPDATED], cnt[CNT_CONSIDER] = 0, 0
     if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:  # Engine.tracker: counted, nothing else
         cnt[CNT_INVALID_ST + j] += 1
