@@ -1,5 +1,5 @@
 """Engine throughput: seconds of telemetry processed per wall second (batch shell, one core),
-for the UD engine and for its dense-covariance reference (:mod:`perf.dense_engine`).
+for the UD engine and for its dense-covariance reference (:mod:`tests.oracles.dense_engine`).
 
 Command::
 
@@ -8,7 +8,7 @@ Command::
 The scenario (2006216, seeded, bus time starting at 1000 s) is synthesized outside the timed region.
 A first, untimed pass over a short prefix compiles/loads the Numba kernels of both engines (its
 time is reported as ``warmup_s``); the timed passes run ``radical process`` (no output archive)
-over the whole archive, first with the UD engine, then with :class:`perf.dense_engine.DenseEngine`
+over the whole archive, first with the UD engine, then with :class:`tests.oracles.dense_engine.DenseEngine`
 in its place (same stream processor, clock, packets and loop). ``x_realtime`` = telemetry seconds
 / wall seconds (UD engine); ``us_per_gyro_sample`` = wall time per distinct SIRU sample
 (everything included: MCAP reading, decoding, clock, engine, packets). ``dense`` holds the same
@@ -41,8 +41,7 @@ def _process(path: Path, engine_cls):
 
     from radical_rt import batch
 
-    from .dense_engine import make_processor
-
+    make_processor = _oracle().make_processor
     made = []
 
     def factory(table=None, clock_mode="reconstruct", packets_path=None):
@@ -77,12 +76,23 @@ def run(profile: str = "quick", out_dir: str | Path | None = None) -> dict[str, 
     return res
 
 
+def _oracle():
+    """The dense-covariance oracle module (tests/oracles/dense_engine.py, a test oracle, not part
+    of the product): the benchmark runs from a checkout of the repository."""
+    try:
+        from tests.oracles import dense_engine
+    except ImportError as exc:
+        raise RuntimeError("the engine benchmark compares with the dense oracle of "
+                           "tests/oracles/dense_engine.py: run it from a checkout") from exc
+    return dense_engine
+
+
 def _timed(profile: str) -> dict[str, Any]:
     """Synthesize, warm up, time the UD then the dense engine (see the module docstring)."""
     from radical_rt.filter import Engine
     from replayer.synth.api import synthesize
 
-    from .dense_engine import DenseEngine, compare
+    DenseEngine, compare = _oracle().DenseEngine, _oracle().compare
 
     with tempfile.TemporaryDirectory() as tmp:
         toml = Path(tmp) / "s.toml"

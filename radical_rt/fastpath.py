@@ -1,7 +1,7 @@
 """The engine's compiled fast path: a run of gyro samples, or one tracker sample, in one Numba call.
 
 :class:`radical_rt.filter.Engine` processes events with small kernels glued by Python (the
-reference path, which the dense-covariance engine of perf/dense_engine.py also runs). Most of the
+reference path, which the dense-covariance engine of tests/oracles/dense_engine.py also runs). Most of the
 glue does the same thing at every 10 Hz window close: close the window, fold the correction,
 re-run the convergence test, find that nothing is due. The kernels here run that common case in
 compiled code, calling the *same* kernels in the same order with the same arguments (so the

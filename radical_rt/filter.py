@@ -126,7 +126,7 @@ class Engine(FastRelease, EngineState):
 
     # ---------------------------------------------------------------- covariance primitives
     # Every covariance operation of the engine goes through these (UD factors here; the dense
-    # reference of perf/dense_engine.py overrides just these, _regressor_reliability and
+    # reference of tests/oracles/dense_engine.py overrides just these, _regressor_reliability and
     # _vector_update). _cov_close_window is the fused 10 Hz window close (radical_rt.timeupdate).
     def _cov_reset_attitude(self, P0) -> None:
         """Attitude covariance ← P0 (3, 3), attitude cross-covariances ← 0, the rest kept."""

@@ -19,7 +19,7 @@ change of order q T / P_pp (1e-6 for the 2006216 tables) of the covariance, agai
 per 0.1 s the rank-one updates cost (perf/README.md). The dense reference of perf/ does the same.
 
 The formula of κ is the one of :meth:`radical_rt.filter.Engine._regressor_reliability`; the dense
-reference (perf/dense_engine.py) computes it from P independently.
+reference (tests/oracles/dense_engine.py) computes it from P independently.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The dense-covariance reference (perf/dense_engine.py) runs the same filter as the UD engine.
+"""The dense-covariance reference (tests/oracles/dense_engine.py) runs the same filter as the UD engine.
 
 Kernel level (one operation on a random SPD covariance, against the UD kernels): time update,
 ordinary and Schmidt-consider gated updates agree to 1e-12 relative (rounding only).
@@ -14,17 +14,17 @@ covariance within 1e-8 of the UD σ_i σ_j. Measured on this run: 2.3e-10 σ, 1.
 import numpy as np
 import pytest
 
-from perf.dense_engine import (
+from radical_rt import ud
+from radical_rt.filter import Engine
+from radical_rt.updates import gated_update, gated_update_consider
+from replayer.synth import synthesize
+from tests.oracles.dense_engine import (
     DenseEngine,
     compare,
     dense_gated_update,
     dense_time_update,
     make_processor,
 )
-from radical_rt import ud
-from radical_rt.filter import Engine
-from radical_rt.updates import gated_update, gated_update_consider
-from replayer.synth import synthesize
 
 N = 27
 

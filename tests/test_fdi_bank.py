@@ -23,11 +23,11 @@ import math
 import numpy as np
 import pytest
 
-from oracles.fdi_bank_py import PythonHypothesisBank
 from perf.fdi_table import fault_toml, synth
 from radical_rt.batch import make_processor
 from radical_rt.fdi import FaultMonitor
 from radical_rt.fdi_hypotheses import HypothesisBank
+from tests.oracles.fdi_bank_py import PythonHypothesisBank
 
 SCENARIOS = {  # name → (fault, duration [s]); gyro 0..3 = A..D, times from the cold start
     "bias 5 deg/hr B": ({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0},

@@ -34,7 +34,7 @@ gyro failure) is not supported: this is a reference for fault-free runs and benc
 
 Command (the same run through both engines, final estimates compared)::
 
-    python -m perf.dense_engine [--duration 300] [--seed 1]
+    python -m tests.oracles.dense_engine [--duration 300] [--seed 1]
 """
 
 from __future__ import annotations
