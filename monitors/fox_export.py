@@ -140,7 +140,7 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
                 w = Writer(f, compression=CompressionType.ZSTD, index_types=IndexType.ALL,
                            enable_crcs=True)
                 w.start(profile="", library="radical-rt export --foxglove")
-                for md in reader._metadata:
+                for md in reader.metadata_records:
                     w.add_metadata(md.name, dict(md.metadata))
                 w.add_metadata("radical.export", {
                     "source": os.path.abspath(path_in), "format": "foxglove json+jsonschema",

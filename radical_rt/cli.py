@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=plain_text(mod.__doc__ or help_text),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(handler=mod.run)
     return parser
 
 
@@ -83,20 +83,20 @@ def _broken(sub, name: str, help_text: str, exc: Exception) -> None:
         print(f"radical {name}: unavailable: {exc}", file=sys.stderr)
         return 2
 
-    p.set_defaults(_run=run)
+    p.set_defaults(handler=run)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `radical` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "_run", None):
+    if not getattr(args, "handler", None):
         parser.print_help()
         return 2
     try:
         with warnings.catch_warnings():  # (restores the display when main returns)
             warnings.showwarning = _show_warning
-            return int(args._run(args) or 0)
+            return int(args.handler(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -119,14 +119,17 @@ def _check(args: argparse.Namespace) -> str | None:
     return None  # (--checkpoint / --timing-out: radical_rt.outpaths, while parsing)
 
 
+class CliLogHandler(logging.StreamHandler):
+    """The stderr handler the command line installs (found again and replaced on a new setup)."""
+
+
 def _setup_logging(level: str) -> None:
     """The node's log lines go to stderr ("radical node: LEVEL message"), whatever root has."""
     logger = logging.getLogger("radical")
-    for h in [h for h in logger.handlers if getattr(h, "_radical_cli", False)]:
+    for h in [h for h in logger.handlers if isinstance(h, CliLogHandler)]:
         logger.removeHandler(h)
-    h = logging.StreamHandler(sys.stderr)
+    h = CliLogHandler(sys.stderr)
     h.setFormatter(logging.Formatter("radical node: %(levelname)s %(message)s"))
-    h._radical_cli = True  # type: ignore[attr-defined]
     logger.addHandler(h)
     logger.setLevel(getattr(logging, level.upper()))
     logger.propagate = False

@@ -368,7 +368,7 @@ class _ZInbox:
 
     def __init__(self, transport: ZenohTransport, key: str, capacity: int,
                  max_payload: int | None = None) -> None:
-        z = transport._z
+        z = transport.zenoh
         self._t, self._z = transport, z
         self.max_payload = max_payload  # larger payloads are dropped uncopied (take_oversize)
         self._oversize: dict[str, int] = {}
@@ -443,7 +443,7 @@ class ZenohTransport:
                  config_file: str | None = None, extra: dict[str, Any] | None = None) -> None:
         import zenoh
 
-        self._z = zenoh
+        self.zenoh = zenoh  # the zenoh module (1.x API), for the session's helpers
         try:
             cfg = zconfig.make_config(mode, listen, connect, extra=extra, config_file=config_file)
         except zconfig.ZenohConfigError:
@@ -464,14 +464,14 @@ class ZenohTransport:
         def on_sample(s: Any) -> None:
             callback(str(s.key_expr), s.payload.to_bytes())
 
-        origin = self._z.Locality.REMOTE if remote_only else None
+        origin = self.zenoh.Locality.REMOTE if remote_only else None
         return self._keep(self.session.declare_subscriber(key, on_sample, allowed_origin=origin))
 
     def _publisher(self, key: str, block: bool, remote_only: bool) -> Any:
         with self._lock:
             pub = self._pubs.get((key, block, remote_only))
             if pub is None:
-                z = self._z
+                z = self.zenoh
                 cc = z.CongestionControl.BLOCK if block else z.CongestionControl.DROP
                 dest = z.Locality.REMOTE if remote_only else z.Locality.ANY
                 pub = self.session.declare_publisher(key, encoding=z.Encoding(self.ENCODING),
@@ -501,7 +501,7 @@ class ZenohTransport:
             with q:  # dropping the query ends the getter's reply stream
                 try:
                     reply = handler(q.payload.to_bytes() if q.payload is not None else b"")
-                    q.reply(q.key_expr, reply, encoding=self._z.Encoding(self.ENCODING))
+                    q.reply(q.key_expr, reply, encoding=self.zenoh.Encoding(self.ENCODING))
                 except Exception as exc:  # never leave a getter waiting for its timeout
                     log.exception("query handler failed")
                     q.reply_err(str(exc).encode())

@@ -48,7 +48,7 @@ class ZByteInbox(MemInbox):
         # indirect=False: the callback runs in Zenoh's receive thread. The default (indirect)
         # callback hands every sample to a Python thread through an unbounded channel, which
         # holds the flood this FIFO is meant to bound (measured: 200 MB for 8 MiB queued)
-        handler = transport._z.handlers.Callback(self._on_sample, indirect=False)
+        handler = transport.zenoh.handlers.Callback(self._on_sample, indirect=False)
         self._sub: Any = transport.session.declare_subscriber(key, handler)
 
     def _on_sample(self, s: Any) -> None:

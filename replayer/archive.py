@@ -249,7 +249,7 @@ class ArchiveReader:
         self._header = None
         with contextlib.suppress(Exception):  # a torn header
             self._header = self._reader.get_header()
-        self._metadata = list(self._reader.iter_metadata())
+        self.metadata_records = list(self._reader.iter_metadata())  # mcap Metadata records
         stats = summary.statistics
         if stats is None:  # a foreign file without statistics: count
             counts = Counter(ch.id for _s, ch, _m in self._reader.iter_messages())
@@ -267,7 +267,7 @@ class ArchiveReader:
                     self.schemas[ch.topic] = json.loads(sc.data)
                 except ValueError:
                     log.warning("%s: schema %s of %s is not JSON", self.path, sc.name, ch.topic)
-        for md in self._metadata:
+        for md in self.metadata_records:
             if md.name == SCENARIO_METADATA:
                 self.scenario.update(md.metadata)
 
@@ -436,7 +436,7 @@ def recover(path_in: str | os.PathLike[str], path_out: str | os.PathLike[str]) -
                        enable_crcs=True)
             h = r._header
             w.start(profile=h.profile if h else "", library=h.library if h else "radical-rt")
-            for md in r._metadata:
+            for md in r.metadata_records:
                 w.add_metadata(md.name, dict(md.metadata))
             sids = {i: w.register_schema(s.name, s.encoding, s.data)
                     for i, s in sorted(r._summary.schemas.items())}

@@ -18,19 +18,13 @@ PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
 
 #: (module path, expression) of the private accesses left (same-class helpers included)
 KNOWN = {
-    ("monitors/fox_export.py", "reader._metadata"),
-    ("radical_rt/cli.py", "args._run"),
     ("radical_rt/clock.py", "fresh._F"),  # the same class
     ("radical_rt/clock.py", "fresh._I"),  # the same class
-    ("radical_rt/node_cli.py", "h._radical_cli"),
     ("radical_rt/transport.py", "box._decl"),
     ("radical_rt/transport.py", "self.bus._add"),
     ("radical_rt/transport.py", "self.bus._find"),
     ("radical_rt/transport.py", "self.bus._remove"),
-    ("radical_rt/transport.py", "transport._z"),
-    ("radical_rt/zinbox.py", "transport._z"),
     ("replayer/archive.py", "r._header"),  # the same class
-    ("replayer/archive.py", "r._metadata"),  # the same class
     ("replayer/archive.py", "r._reader"),  # the same class
     ("replayer/archive.py", "r._summary"),  # the same class
     ("studies/montecarlo.py", "e._vector_update"),
