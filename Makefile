@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m radical_rt.demo --out $(OUT)
+	$(BIN)/python -m radical_rt.apps.demo --out $(OUT)
 
 # The browser test drives Debian's chromium; install it when missing (needs root, as in CI).
 sysdeps:

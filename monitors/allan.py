@@ -40,8 +40,8 @@ from monitors.allan_core import (
     paper_units,
     param_table,
 )
-from radical_rt.conventions import ARCSEC, DEG, DEG_PER_HR
-from radical_rt.outpaths import output_dir
+from radical_rt.contract.conventions import ARCSEC, DEG, DEG_PER_HR
+from radical_rt.io.outpaths import output_dir
 
 TERM_NAMES = {"N": "angle random walk N", "B": "bias instability B", "K": "rate random walk K",
               "Q": "quantization Q"}

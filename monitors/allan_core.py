@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from radical_rt.conventions import ARCSEC, DEG, DEG_PER_HR, SIRU_TT_WRAP
+from radical_rt.contract.conventions import ARCSEC, DEG, DEG_PER_HR, SIRU_TT_WRAP
 
 BI_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # σ_floor = 0.6643·B
 GYRO_NAMES = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
@@ -266,7 +266,7 @@ def paper_units(values: dict[str, float]) -> dict[str, float]:
 
 
 def param_table(results: list[GyroResult]) -> dict[str, Any]:
-    """The noise parameters in the parameter table's form (radical_rt.params, ``[params]``):
+    """The noise parameters in the parameter table's form (radical_rt.contract.params, ``[params]``):
     the worst gyro's ARW, the quantum q = √12·Q and the bias random walk density."""
     n = max(r.terms["N"] for r in results)
     q = max(r.terms["Q"] for r in results) * math.sqrt(12.0)

@@ -257,7 +257,7 @@ def write_calibration_report(out: Path, data: list[Any], tables_md: dict[str, st
 
 def _modes(d: Any) -> list[str]:
     """'converged' / 'converging' per decimated packet, from its NOT_CONVERGED flag bit."""
-    from radical_rt.flags import Flag
+    from radical_rt.contract.flags import Flag
 
     return ["converged" if not (int(f) & int(Flag.NOT_CONVERGED)) else "converging"
             for f in d.flags]

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return _err("choose a dashboard: radical monitor tui | web | foxglove")
     if args.vehicle is not None and not VEHICLE_RE.match(args.vehicle):
         return _err(f"--vehicle {args.vehicle!r} must match [a-z0-9_-]+")
-    from radical_rt import zconfig
+    from radical_rt.io import zconfig
 
     try:
         for ep in (args.listen, args.connect):

@@ -1,7 +1,7 @@
 """Display helpers shared by the report and the live monitors.
 
 Everything here works on the contract's messages (CONTRACT §3: plain dicts decoded from msgpack)
-and converts to the paper's units with :mod:`radical_rt.conventions`. No filter internals.
+and converts to the paper's units with :mod:`radical_rt.contract.conventions`. No filter internals.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import re
 from collections.abc import Iterable
 from typing import Any
 
-from radical_rt.conventions import ARCSEC, PAPER_UNITS, SI_PER_PAPER_UNIT
-from radical_rt.flags import Flag, flag_names
-from radical_rt.paper_table import DIGITS, ORDER, TITLES, element_names
+from radical_rt.contract.conventions import ARCSEC, PAPER_UNITS, SI_PER_PAPER_UNIT
+from radical_rt.contract.flags import Flag, flag_names
+from radical_rt.contract.paper_table import DIGITS, ORDER, TITLES, element_names
 
 __all__ = ["ARCSEC", "DIGITS", "FLAG_BITS", "GROUP_LABELS", "ORDER", "PAPER_UNITS", "TITLES",
            "element_names", "flag_names", "flag_label", "fmt_est_sigma", "group_paper",

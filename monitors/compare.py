@@ -24,7 +24,7 @@ from typing import Any
 import msgpack
 
 from monitors.common import GROUP_LABELS, ORDER, PAPER_UNITS, element_names, group_paper
-from radical_rt.outpaths import output_file
+from radical_rt.io.outpaths import output_file
 from replayer.archive import ArchiveError, ArchiveReader
 
 

@@ -32,8 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from monitors.common import ORDER, group_paper
 from monitors.fox_schema import FRAME_TRANSFORM, LOG, LOG_LEVELS, paper_schema
-from radical_rt.conventions import ARCSEC
-from radical_rt.flags import Flag
+from radical_rt.contract.conventions import ARCSEC
+from radical_rt.contract.flags import Flag
 
 #: Nominal tracker mountings (CONTRACT §1.4).
 R_ST1_FROM_BODY = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])

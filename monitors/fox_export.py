@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from monitors.fox_convert import DERIVED_SCHEMAS, FoxgloveConverter, siru_known_schema
 from monitors.fox_schema import SchemaBuilder, known_schema
-from radical_rt.outpaths import output_file
+from radical_rt.io.outpaths import output_file
 
 #: topics whose shape is fixed by the contract: their schema is inferred from the first messages
 _FIXED = {"/siru", "/st1", "/st2", "/temp", "/tlm/small", "/truth/attitude", "/truth/siru_time"}

@@ -13,7 +13,7 @@ with the contract schema merged with that first message's shape (later extra fie
 the panels). Message
 timestamps are bus time (as in the archives), not wall time.
 
-Zenoh: a peer session made by :func:`radical_rt.zconfig.make_config` (loopback endpoints,
+Zenoh: a peer session made by :func:`radical_rt.io.zconfig.make_config` (loopback endpoints,
 multicast off; default: connect to the node's ``tcp/127.0.0.1:7448``). Its callbacks only queue
 the payloads; one worker thread decodes, converts and logs them (a slow browser never blocks
 Zenoh: the SDK drops the oldest data message for a client whose queue is full).
@@ -64,7 +64,7 @@ class FoxgloveBridge:
         import foxglove
         import zenoh
 
-        from radical_rt import zconfig
+        from radical_rt.io import zconfig
 
         self._ctx = foxglove.Context()
         self.server = foxglove.start_server(name=f"radical-rt {self.vehicle}", host="127.0.0.1",

@@ -183,7 +183,7 @@ class ZenohSource:
     """Feeds a :class:`LatestStore` from ``radical/<vehicle>/{tlm/*,fault,diag}`` and the
     liveliness tokens ``radical/<vehicle>/alive/filter`` (vehicle ``None``: all vehicles).
 
-    The session is made by :func:`radical_rt.zconfig.make_config` (loopback endpoints, multicast
+    The session is made by :func:`radical_rt.io.zconfig.make_config` (loopback endpoints, multicast
     scouting off); with neither listen nor connect it connects to the node's default endpoint.
     """
 
@@ -199,7 +199,7 @@ class ZenohSource:
     def start(self) -> ZenohSource:
         import zenoh
 
-        from radical_rt import zconfig
+        from radical_rt.io import zconfig
 
         listen, connect = zconfig.endpoints(self.listen, self.connect, role="monitor")
         cfg = zconfig.make_config("peer", listen=listen, connect=connect,

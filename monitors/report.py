@@ -55,10 +55,10 @@ from monitors.common import (
     group_paper,
     safe_name,
 )
-from radical_rt.conventions import SI_PER_PAPER_UNIT
-from radical_rt.flags import GYRO_FAILED
-from radical_rt.outpaths import output_dir
-from radical_rt.paper_table import rows as paper_rows
+from radical_rt.contract.conventions import SI_PER_PAPER_UNIT
+from radical_rt.contract.flags import GYRO_FAILED
+from radical_rt.contract.paper_table import rows as paper_rows
+from radical_rt.io.outpaths import output_dir
 
 TLM_TOPICS = ("/tlm/large", "/tlm/medium")
 GAP_S = 60.0  # larger jumps of the packet time are stream breaks, collapsed in the figures
@@ -315,7 +315,7 @@ def _si(group: str, vals: list[float]) -> list[float]:
 
 def table_rows(data: list[ArchiveData], group: str) -> tuple[list[str], list[dict[str, Any]]]:
     """Element names and per-archive rows for one group (paper units), with err/σ from
-    :func:`radical_rt.paper_table.rows` when truth is known."""
+    :func:`radical_rt.contract.paper_table.rows` when truth is known."""
     out = []
     names: list[str] = []
     for d in data:
@@ -341,7 +341,7 @@ def table_rows(data: list[ArchiveData], group: str) -> tuple[list[str], list[dic
 
 
 def _gyro_failed(flags: Any, i: int) -> bool:
-    """True when gyro i's GYRO_<A+i>_FAILED bit (radical_rt.flags.GYRO_FAILED) is set."""
+    """True when gyro i's GYRO_<A+i>_FAILED bit (radical_rt.contract.flags.GYRO_FAILED) is set."""
     return isinstance(flags, int) and i < len(GYRO_FAILED) and bool(flags & int(GYRO_FAILED[i]))
 
 

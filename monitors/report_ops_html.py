@@ -18,7 +18,7 @@ import numpy as np
 from monitors.report_ops import OpsData, chi2_bounds, markers, stream_label
 from monitors.report_ops_fig import DOF, MARK_STYLE
 from monitors.view import euler_321
-from radical_rt.flags import Flag
+from radical_rt.contract.flags import Flag
 
 COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"]
 MARK_LEGEND = {"boundary": "stream boundary", "isolation": "gyro isolation",

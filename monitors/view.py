@@ -20,7 +20,7 @@ from monitors.common import (
     group_paper,
     residual_kinds,
 )
-from radical_rt.flags import GYRO_FAILED
+from radical_rt.contract.flags import GYRO_FAILED
 
 
 def _num(v: Any) -> float:

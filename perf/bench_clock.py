@@ -2,7 +2,7 @@
 
 For each SIRU oscillator offset (−100, −30, +30, +100 ppm; sample jitter 1 µs, read jitter 20 µs,
 the simulator's defaults) it synthesizes a seeded, network-free archive with a 2**32 counter wrap
-and a counter reset, streams its ``/siru`` messages through :class:`radical_rt.clock.SiruClock`
+and a counter reset, streams its ``/siru`` messages through :class:`radical_rt.clock.siru_clock.SiruClock`
 (``reconstruct`` and ``naive``), and compares each released sample's time with
 ``/truth/siru_time``. Profiles: ``smoke`` (±100 ppm, 300 s, for the test suite), ``quick``
 (600 s), ``full`` (3600 s; the table in docs/clock.md).
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radical_rt.clock import ClockConfig, SiruClock
+from radical_rt.clock.siru_clock import ClockConfig, SiruClock
 
 PROFILES = {"smoke": ((-100.0, 100.0), 300.0), "quick": ((-100.0, -30.0, 30.0, 100.0), 600.0),
             "full": ((-100.0, -30.0, 30.0, 100.0), 3600.0)}

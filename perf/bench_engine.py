@@ -39,7 +39,7 @@ def _process(path: Path, engine_cls):
     clock, packets and loop are the shell's own). Returns (summary, engine)."""
     from unittest import mock
 
-    from radical_rt import batch
+    from radical_rt.apps import batch
 
     make_processor = _oracle().make_processor
     made = []
@@ -89,7 +89,7 @@ def _oracle():
 
 def _timed(profile: str) -> dict[str, Any]:
     """Synthesize, warm up, time the UD then the dense engine (see the module docstring)."""
-    from radical_rt.filter import Engine
+    from radical_rt.engine.filter import Engine
     from replayer.synth.api import synthesize
 
     DenseEngine, compare = _oracle().DenseEngine, _oracle().compare

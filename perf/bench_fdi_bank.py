@@ -11,7 +11,7 @@ from the alarm at 43.5 s to the isolation at 209.6 s, 3442 tracker samples, with
 identical before the fault.
 
 Each repetition feeds both archives through the batch shell's stream processor
-(:func:`radical_rt.batch.make_processor`, what ``radical process`` runs), message by message, and
+(:func:`radical_rt.apps.batch.make_processor`, what ``radical process`` runs), message by message, and
 reads the wall clock after every message. Columns:
 
 * ``bank active [ms per s]``: wall time spent on the messages between the alarm and the isolation
@@ -22,14 +22,14 @@ reads the wall clock after every message. Columns:
   bank; the bank the compiled release runs (``FaultMonitor.kernel_bank``) cannot be timed apart;
 * ``extra [µs per tracker sample]``: (bank-active interval − the nominal one) over the bank's
   tracker samples: what the alarm costs per sample, whoever runs the bank;
-* rows: ``nominal``; ``compiled bank`` (radical_rt.fdi_hypotheses run inside the engine's
+* rows: ``nominal``; ``compiled bank`` (radical_rt.fdi.fdi_hypotheses run inside the engine's
   compiled release, the product); ``compiled bank, hook`` (the same bank run by the window hook,
   which the release hands over to after every tracker sample: the product before the bank moved
   into the release); ``no-op bank`` (a bank that never advances nor decides, in the hook: the
   cost of those hand-overs alone); ``no-op bank, in release`` (the same, kept by the release
   without any bank arithmetic: what the alarm and the fault cost besides the bank); ``Python bank`` (the oracle of tests/oracles/fdi_bank_py.py,
   the implementation before the bank was compiled, in the hook; one repetition).
-* ``radical process [s]``: the whole run with :func:`radical_rt.batch.process` (output archive
+* ``radical process [s]``: the whole run with :func:`radical_rt.apps.batch.process` (output archive
   written), nominal and fault archive, and their ratio.
 
 The medians over the repetitions are reported; the rows of one repetition run back to back, so
@@ -59,7 +59,7 @@ INPUTS = ("/siru", "/st1", "/st2", "/temp")
 
 def _bank_types() -> dict[str, Any]:
     """name → bank class, each timing its advance (seconds and tracker samples, class counters)."""
-    from radical_rt.fdi_hypotheses import HypothesisBank, idle_kernel_args
+    from radical_rt.fdi.fdi_hypotheses import HypothesisBank, idle_kernel_args
 
     def timed(base):
         class Timed(base):
@@ -126,8 +126,8 @@ def _messages(path: Path) -> list[tuple[str, int, bytes]]:
 
 def _feed(msgs, bank_type) -> tuple[Any, np.ndarray, np.ndarray]:
     """(stream processor, bus time [s] and cumulative wall time [s] after each message)."""
-    from radical_rt.batch import make_processor
-    from radical_rt.fdi import FaultMonitor
+    from radical_rt.apps.batch import make_processor
+    from radical_rt.fdi.monitor import FaultMonitor
     saved = FaultMonitor.bank_type
     FaultMonitor.bank_type = bank_type
     try:
@@ -152,7 +152,7 @@ def _interval(t_bus: np.ndarray, wall: np.ndarray, t0: float, t1: float) -> floa
 
 
 def _process_wall(path: Path, out: Path) -> float:
-    from radical_rt.batch import process
+    from radical_rt.apps.batch import process
     t0 = time.perf_counter()
     process([str(path)], str(out))
     return time.perf_counter() - t0
@@ -162,7 +162,7 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r} (one of {sorted(PROFILES)})")
     from perf.fdi_table import fault_toml, synth
-    from radical_rt.fdi_hypotheses import HypothesisBank
+    from radical_rt.fdi.fdi_hypotheses import HypothesisBank
     fault, duration, reps = PROFILES[profile]
     banks = _bank_types()
     res: dict[str, Any] = {"profile": profile, "fault": fault, "duration_s": duration,

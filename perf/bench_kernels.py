@@ -9,7 +9,7 @@ From code: ``perf.bench_kernels.run(profile="quick", out_dir=None) -> dict``.
 
 How to read the table (all times are µs per call, Python call overhead included, ≈ 0.3 µs):
 
-* ``UD best`` / ``UD p99``: the radical_rt.ud kernel; best = the lowest mean over ``repeat``
+* ``UD best`` / ``UD p99``: the radical_rt.kernels.ud kernel; best = the lowest mean over ``repeat``
   loops of ``number`` calls; p99 = 99th percentile of individually timed calls (tail latency).
 * ``dense numpy``: the same step on a dense P with numpy (Joseph form
   (I−Kh)P(I−Kh)ᵀ + rKKᵀ for an update, ΦPΦᵀ + Q for a time update, P + c aaᵀ, P_ii += c).
@@ -59,7 +59,7 @@ t0 = time.perf_counter()
 import numba  # noqa: F401
 t1 = time.perf_counter()
 import numpy as np
-from radical_rt import ud
+from radical_rt.kernels import ud
 t2 = time.perf_counter()
 n = 26; ws = ud.UDWorkspace(n); U = np.zeros((n, n)); d = np.zeros(n)
 calls = {
@@ -157,7 +157,7 @@ def _filterpy(P, Phi, Q):
 
 def run_kernels(number: int, repeat: int, samples: int) -> tuple[dict, dict]:
     """Time every case; returns (results, info)."""
-    from radical_rt import ud
+    from radical_rt.kernels import ud
 
     rng = np.random.default_rng(SEED)
     P, Phi, Q_aa, h_dense, h_sparse = _problem(rng)

@@ -95,7 +95,7 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
 
 
 def _small_trigger() -> str:
-    from radical_rt.telemetry import default_packets
+    from radical_rt.stream.telemetry import default_packets
     return getattr(default_packets()["small"], "trigger", "window")
 
 

@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from radical_rt.outpaths import output_dir
+from radical_rt.io.outpaths import output_dir
 
 BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine": "perf.bench_engine",
            "clock": "perf.bench_clock", "fdi": "perf.bench_fdi_bank", "startup": "perf.bench_startup",

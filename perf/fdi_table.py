@@ -104,7 +104,7 @@ class Run:
     1 Hz, and the parameters with σ every ``param_period`` s; truth kept from the archive."""
 
     def __init__(self, param_period: float = 60.0) -> None:
-        from radical_rt.batch import make_processor
+        from radical_rt.apps.batch import make_processor
         self.sp = make_processor()
         self.param_period = param_period
         self.faults: list[dict[str, Any]] = []
@@ -184,7 +184,7 @@ def evaluate(run: Run, t_fault: float | None) -> dict[str, Any]:
     """Detection, isolation and post-isolation consistency of one run (times in s of bus time)."""
     from scipy.spatial.transform import Rotation
 
-    from radical_rt.state import PARAM_GROUPS
+    from radical_rt.contract.state import PARAM_GROUPS
     e = run.sp.engine
     fdi = e.fdi
     out: dict[str, Any] = {"alarms": [dict(a) for a in fdi.alarms],

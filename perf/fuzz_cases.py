@@ -18,9 +18,9 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from radical_rt.commands import BUMP_MAX_SI
-from radical_rt.params import CHOICES, RANGES, Params
-from radical_rt.telemetry import CATALOGUE, DECIMATION_MAX, PERIOD_RANGE_S
+from radical_rt.apps.commands import BUMP_MAX_SI
+from radical_rt.contract.params import CHOICES, RANGES, Params
+from radical_rt.stream.telemetry import CATALOGUE, DECIMATION_MAX, PERIOD_RANGE_S
 
 N_GYRO = 4
 GROUP_SIZE = {"b": 4, "lam": 4, "mu": 4, "du": 4, "dv": 4, "phi2": 3}

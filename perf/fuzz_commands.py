@@ -4,13 +4,13 @@
                                  [--feed 4] [--out perf/results/fuzz_commands.json]
 
 Commands (:func:`perf.fuzz_cases.command_case`, half valid-but-extreme, half invalid) go to an
-in-memory :class:`~radical_rt.node.FilterNode` that is fed a simulated stream (``--feed``
+in-memory :class:`~radical_rt.apps.node.FilterNode` that is fed a simulated stream (``--feed``
 input messages after every command). Damaged checkpoints (:func:`perf.fuzz_cases.
 checkpoint_case`) are read and restored into a processor. Counted, all expected to be 0:
 
 * crashes (the worker process died, e.g. a segfault) and hangs (no progress for ``HANG_S``);
 * internal errors (a reply "internal error", an ``internal_error`` input rejection, or an
-  exception escaping :func:`radical_rt.checkpoint.restore` other than CheckpointError);
+  exception escaping :func:`radical_rt.io.checkpoint.restore` other than CheckpointError);
 * state changes by refused commands or checkpoints, invalid commands accepted, and NUMERIC
   still set after a cold start (``numeric_stuck``).
 
@@ -57,8 +57,8 @@ class CommandRig:
     """An in-memory node fed the stream, commands sent through its queryable."""
 
     def __init__(self, msgs: list[tuple[str, bytes]], ckdir: Path, feed: int) -> None:
-        from radical_rt.node import FilterNode, build_processors
-        from radical_rt.transport import InMemoryBus, InMemoryTransport
+        from radical_rt.apps.node import FilterNode, build_processors
+        from radical_rt.io.transport import InMemoryBus, InMemoryTransport
         self.msgs, self.feed_n, self.pos = msgs, feed, 0
         self.bus = InMemoryBus(threaded=False)
         self.node = FilterNode(InMemoryTransport(self.bus), build_processors(["v1"]),
@@ -89,7 +89,7 @@ class CommandRig:
     def state(self) -> bytes:
         import msgpack
 
-        from radical_rt.checkpoint import capture
+        from radical_rt.io.checkpoint import capture
         self.node.wait_idle(HANG_S)
         return msgpack.packb(capture(self.sp(), "v1"), use_bin_type=True)
 
@@ -127,8 +127,8 @@ class CheckpointRig:
     """Damaged checkpoints read and restored into a processor."""
 
     def __init__(self, msgs: list[tuple[str, bytes]], ckdir: Path) -> None:
-        from radical_rt import checkpoint as ckpt
-        from radical_rt.batch import make_processor
+        from radical_rt.apps.batch import make_processor
+        from radical_rt.io import checkpoint as ckpt
         self.ckpt, self.make = ckpt, make_processor
         self.ckdir = ckdir
         sp = make_processor()

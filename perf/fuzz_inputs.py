@@ -4,7 +4,7 @@
                                [--duration 60] [--per-message 10] [--json OUT.json]
 
 A clean simulated archive (or ``--archive``) is fed through the batch shell's stream processor
-(:func:`radical_rt.batch.make_processor`) in ``log_time`` order, pass after pass (seed
+(:func:`radical_rt.apps.batch.make_processor`) in ``log_time`` order, pass after pass (seed
 ``seed + pass``), with ``--per-message`` bad payloads (on average) inserted before each clean
 message (but the first: the first message of a stream sets its time line, docs/node.md "Time
 sanity"), until ``--payloads`` bad payloads were fed. Every bad payload is of one of the kinds
@@ -149,7 +149,7 @@ def _result(sp) -> tuple[bytes, dict[str, Any]]:
 def run(msgs: list[tuple[str, int, bytes]], n_payloads: int, seed: int, per_message: float,
         hang_s: float = 1.0, log=print) -> dict[str, Any]:
     """The harness (module docstring); msgs: the clean (topic, log_ns, payload) stream."""
-    from radical_rt.batch import make_processor
+    from radical_rt.apps.batch import make_processor
 
     clean = make_processor()
     for topic, _ns, data in msgs:

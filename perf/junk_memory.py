@@ -52,12 +52,12 @@ def main(argv: list[str] | None = None) -> int:
                          "random: random bytes")
     ap.add_argument("--json", metavar="OUT.json")
     a = ap.parse_args(argv)
-    from radical_rt import zconfig
-    from radical_rt.transport import ZenohTransport
+    from radical_rt.io import zconfig
+    from radical_rt.io.transport import ZenohTransport
 
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
     log = open(os.devnull, "w")
-    node = subprocess.Popen([sys.executable, "-m", "radical_rt.cli", "node", "--vehicle", "jm",
+    node = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "node", "--vehicle", "jm",
                              "--listen", ep], stdout=log, stderr=subprocess.PIPE, text=True,
                             cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:

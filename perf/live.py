@@ -7,7 +7,7 @@ Each measurement runs real processes on loopback Zenoh:
   CLOCK_MONOTONIC, the instant just before every ``put`` and the arrival of every ``tlm/*``
   packet. It is at once the replayer and the ground station;
 * ``radical node`` connecting to it, with ``--timing-out`` so that its filter loop records the
-  taken/fed/published instants of every message (:class:`radical_rt.node.LoopTiming`);
+  taken/fed/published instants of every message (:class:`radical_rt.apps.node.LoopTiming`);
 * for the reference, a **ping** and a **pong** process (``python -m perf.live ping|pong``)
   bouncing 96-byte msgpack messages at 100 Hz.
 
@@ -61,7 +61,7 @@ import msgpack
 import numpy as np
 
 DEADLINE_NS = 10_000_000  # the SIRU sample period
-INPUT_TOPICS = ("siru", "st1", "st2", "temp")  # = radical_rt.stream.INPUT_TOPICS (codes 0..3)
+INPUT_TOPICS = ("siru", "st1", "st2", "temp")  # = radical_rt.stream.processor.INPUT_TOPICS (codes 0..3)
 KINDS = ("small", "medium", "large")
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 PING_KEY, PONG_KEY = "radical_bench/ping", "radical_bench/pong"
@@ -91,7 +91,7 @@ def pinned(argv: list[str], cpus: list[int]) -> list[str]:
 def radical_argv() -> list[str]:
     """How to launch ``radical`` from this interpreter (the venv's console script if present)."""
     script = Path(sys.executable).with_name("radical")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "radical_rt.cli"]
+    return [str(script)] if script.exists() else [sys.executable, "-m", "radical_rt.apps.cli"]
 
 
 def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
@@ -174,7 +174,7 @@ def machine_info() -> dict[str, Any]:
 # ------------------------------------------------------------------------------------ packets
 def trigger_supported() -> bool:
     """Whether this version's packet files know ``trigger`` (sample-triggered telemetry)."""
-    from radical_rt.telemetry import PacketError, parse_packets
+    from radical_rt.stream.telemetry import PacketError, parse_packets
     try:
         parse_packets({"small": {"trigger": "sample", "period_s": 0.01}})
         return True
@@ -210,7 +210,7 @@ def packet_file(config: str, directory: Path) -> str | None:
         text = packet_presets()[config]
         if text is None:
             raise LiveError(f"packet preset {config!r} needs sample-triggered packets, which this "
-                            "version of radical_rt.telemetry does not have")
+                            "version of radical_rt.stream.telemetry does not have")
         path = directory / f"packets_{config}.toml"
         path.write_text(text)
         return str(path)
@@ -274,8 +274,8 @@ def sample_times(stream: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     bit-identical times) over the stream's SIRU messages offline; bridged samples (never read)
     are skipped.
     """
-    from radical_rt.clock import ClockConfig, SiruClock
-    from radical_rt.packets import decode_siru
+    from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+    from radical_rt.stream.packets import decode_siru
 
     clock = SiruClock(ClockConfig(), n_gyro=4)
     reads: list[tuple[int, int]] = []  # (tt, stream index) of every read, in order
@@ -315,7 +315,7 @@ def phases(n: int, spread_s: float = 0.1, aligned: bool = False) -> np.ndarray:
 def _open_session(listen: str | None = None, connect: str | None = None) -> Any:
     import zenoh
 
-    from radical_rt.zconfig import make_config
+    from radical_rt.io.zconfig import make_config
     return zenoh.open(make_config("peer", listen=[listen] if listen else [],
                                   connect=[connect] if connect else []))
 
@@ -507,7 +507,7 @@ def role_memory(a: argparse.Namespace) -> int:
     """RSS after 0, 1, 2, 4, … vehicles in ONE process: warm-up (kernels loaded) first, then each
     new vehicle is built as the node builds it and fed the stream (as fast as possible), so its
     buffers, clock and packet state are those of a running vehicle. Writes JSON to ``--out``."""
-    from radical_rt.node import build_processors, warm_up
+    from radical_rt.apps.node import build_processors, warm_up
 
     stream = load_stream(a.stream)
     warm_up()
@@ -633,7 +633,7 @@ def _wait_line(p: subprocess.Popen, word: str, timeout: float, what: str) -> Non
 
 def rtt_run(n: int, rate: float, cpus: list[int], work: Path, warmup: int = 50) -> dict[str, Any]:
     """Zenoh round trip between two pinned processes at ``rate`` Hz (the reference)."""
-    from radical_rt.zconfig import free_port
+    from radical_rt.io.zconfig import free_port
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     me = [sys.executable, "-m", "perf.live"]
@@ -682,7 +682,7 @@ def node_session(stream_path: Path, n_vehicles: int, packets: str | None, cpus: 
                  linger: float = 1.5, tag: str = "run", node_args: list[str] | None = None,
                  driver_cpus: list[int] | None = None) -> NodeRun:
     """Start the driver (listening) and ``radical node`` (connecting), stream, stop, collect."""
-    from radical_rt.zconfig import free_port
+    from radical_rt.io.zconfig import free_port
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     drv_out = work / f"{tag}_drive.npz"
@@ -960,7 +960,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=50)
     p.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    from radical_rt.zconfig import check_endpoint
+    from radical_rt.io.zconfig import check_endpoint
     for ep in (getattr(a, "listen", None), getattr(a, "connect", None)):
         if ep:
             check_endpoint(ep)

@@ -116,7 +116,7 @@ ERR_NONFINITE = 3  # a NaN or Inf in an input
 
 def inline_kernel(fn):
     """:func:`kernel` inlined into its callers at Numba IR level (``inline='always'``): for the
-    helpers of :mod:`radical_rt.fastpath` that take the tuple of engine arrays, whose reference
+    helpers of :mod:`radical_rt.engine.fastpath` that take the tuple of engine arrays, whose reference
     counting per call would otherwise cost more than their arithmetic."""
     _drop_stale_cache(fn.__code__.co_filename)
     return njit(inline="always", **_POLICY)(fn)

@@ -33,7 +33,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_strea
 from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
-from radical_rt.conventions import t_to_ns
+from radical_rt.contract.conventions import t_to_ns
 from replayer.schemas import SCHEMAS, schema_name
 
 log = logging.getLogger(__name__)

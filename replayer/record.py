@@ -61,8 +61,8 @@ from typing import Any
 
 import msgpack
 
-from radical_rt.conventions import t_to_ns
-from radical_rt.outpaths import output_file
+from radical_rt.contract.conventions import t_to_ns
+from radical_rt.io.outpaths import output_file
 from replayer.archive import ArchiveError, ArchiveWriter
 from replayer.replay import ReplayError, open_session, tool_config
 from replayer.schemas import SCHEMAS, schema_name
@@ -341,7 +341,7 @@ def _err(msg: str) -> None:
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
-    from radical_rt import zconfig
+    from radical_rt.io import zconfig
 
     try:
         check_vehicle(args.vehicle)

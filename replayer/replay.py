@@ -61,7 +61,7 @@ from typing import Any
 
 import msgpack
 
-from radical_rt.eos import EOS_TOPIC, make_eos
+from radical_rt.stream.eos import EOS_TOPIC, make_eos
 from replayer.archive import INPUT_TOPICS, ArchiveError, ArchiveReader, TruncatedArchiveWarning
 
 log = logging.getLogger("radical.replay")
@@ -147,7 +147,7 @@ def tool_config(listen: str | None, connect: str | None, role: str,
     is a peer, and a peer routes for its clients but does not relay between two peers that both
     only connect to it, so two peer tools (``radical replay`` → ``radical record``) would not see
     each other through the node."""
-    from radical_rt import zconfig
+    from radical_rt.io import zconfig
 
     lst, con = zconfig.endpoints(listen, connect, role=role)
     mode = "peer" if lst else "client"
@@ -338,7 +338,7 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
             for t, k in keys.items()}
     counts = dict.fromkeys(used, 0)
     # delivery: messages put while a publisher had no matching subscriber (nobody received them)
-    # and puts that failed; the end-of-stream markers sent (radical_rt.eos)
+    # and puts that failed; the end-of-stream markers sent (radical_rt.stream.eos)
     matched = {t: bool(p.matching_status.matching) for t, p in pubs.items()}
     listeners = [p.declare_matching_listener(functools.partial(_on_matching, matched, t))
                  for t, p in pubs.items() if hasattr(p, "declare_matching_listener")]
@@ -562,7 +562,7 @@ def _summary_line(res: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
-    from radical_rt import zconfig
+    from radical_rt.io import zconfig
 
     # archive warnings are printed here as one line each, not by logging's last-resort handler
     archive_log = logging.getLogger("replayer.archive")

@@ -6,8 +6,8 @@ resets, and data gaps.
 
 For each case of :mod:`studies.clock_matrix_cases` (26 seeded 1-hour cases; ``--quick``: 4 cases
 of 300–600 s) it synthesizes the archive (``radical synth``'s API, built-in 2006216 as the base),
-runs ``radical process`` on it in-process (``radical_rt.batch.process``) and streams the
-archive's ``/siru`` messages through a fresh :class:`radical_rt.clock.SiruClock`. Measured (see
+runs ``radical process`` on it in-process (``radical_rt.apps.batch.process``) and streams the
+archive's ``/siru`` messages through a fresh :class:`radical_rt.clock.siru_clock.SiruClock`. Measured (see
 :mod:`studies.clock_matrix_metrics`):
 
 | column | meaning | aim (PASS) |
@@ -56,7 +56,7 @@ ALARM_FLAGS = ("PARITY_ALARM", "GYRO_A_FAILED", "GYRO_B_FAILED", "GYRO_C_FAILED"
 
 def run_case(case: Case, workdir: str | Path, keep: bool = False) -> dict:
     """Synthesize, process and measure one case; returns its row (see the module docstring)."""
-    from radical_rt.batch import process
+    from radical_rt.apps.batch import process
     from replayer.synth import synthesize
 
     work = Path(workdir)

@@ -1,7 +1,7 @@
 """Measurements of the clock robustness matrix (issue 17) on one synthesized archive and the
 output of ``radical process`` on it. SI inside (s), µs / ppm / ms only in the returned rows.
 
-* :func:`clock_run`: :class:`radical_rt.clock.SiruClock` (the default configuration, as the batch
+* :func:`clock_run`: :class:`radical_rt.clock.siru_clock.SiruClock` (the default configuration, as the batch
   engine builds it) streamed over the archive's ``/siru`` messages; per message its bus time
   and ``locked``; per released sample its time, tag (``clock.last_tt``) and whether the clock
   was locked before and after its message; the frequency estimate every 10 s.
@@ -24,8 +24,8 @@ import msgpack
 import numpy as np
 
 from perf.bench_clock import match_truth, read_archive
-from radical_rt.clock import ClockConfig, SiruClock
-from radical_rt.flags import Flag
+from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+from radical_rt.contract.flags import Flag
 from replayer.archive import ArchiveReader
 
 FREQ_EVERY_MSGS = 100  # frequency estimate sampled every 100 /siru messages (10 s)

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from radical_rt.batch import process
-from radical_rt.design import analysis
-from radical_rt.design import plan as planmod
-from radical_rt.state import PARAM_GROUPS
+from radical_rt.apps.batch import process
+from radical_rt.apps.design import analysis
+from radical_rt.apps.design import plan as planmod
+from radical_rt.contract.state import PARAM_GROUPS
 
 
 def y60_scenario(amp: float = 60.0) -> dict:

@@ -42,10 +42,10 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from radical_rt.conventions import SI_PER_PAPER_UNIT
-from radical_rt.paper_table import ORDER, element_names
-from radical_rt.params import ParamTable, to_si
-from radical_rt.state import PARAM_GROUPS, StateLayout
+from radical_rt.contract.conventions import SI_PER_PAPER_UNIT
+from radical_rt.contract.paper_table import ORDER, element_names
+from radical_rt.contract.params import ParamTable, to_si
+from radical_rt.contract.state import PARAM_GROUPS, StateLayout
 
 T_START_A, T_START_B = 1000.0, 10000.0
 CHECKPOINTS_MIN = (5.0, 10.0, 20.0, 30.0, 40.0, 60.0)  # error snapshots (min after the start)
@@ -187,7 +187,7 @@ def checkpoint_table(res: dict[str, Any]) -> str:
 
 def run(out: Path, duration: float | None = None, seed_a: int = 2005301, seed_b: int = 2006216,
         reuse: bool = False) -> dict[str, Any]:
-    from radical_rt.batch import process
+    from radical_rt.apps.batch import process
 
     out.mkdir(parents=True, exist_ok=True)
     a, b = out / "2005301.mcap", out / "2006216.mcap"

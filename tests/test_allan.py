@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from radical_rt.cli import main
-from radical_rt.conventions import DEG, DEG_PER_HR
-from radical_rt.params import ParamTable
+from radical_rt.apps.cli import main
+from radical_rt.contract.conventions import DEG, DEG_PER_HR
+from radical_rt.contract.params import ParamTable
 from replayer.synth.api import synthesize
 from replayer.synth.scenario import load_scenario
 

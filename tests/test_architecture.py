@@ -18,12 +18,12 @@ PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
 
 #: (module path, expression) of the private accesses left (same-class helpers included)
 KNOWN = {
-    ("radical_rt/clock.py", "fresh._F"),  # the same class
-    ("radical_rt/clock.py", "fresh._I"),  # the same class
-    ("radical_rt/transport.py", "box._decl"),
-    ("radical_rt/transport.py", "self.bus._add"),
-    ("radical_rt/transport.py", "self.bus._find"),
-    ("radical_rt/transport.py", "self.bus._remove"),
+    ("radical_rt/clock/siru_clock.py", "fresh._F"),  # the same class
+    ("radical_rt/clock/siru_clock.py", "fresh._I"),  # the same class
+    ("radical_rt/io/transport.py", "box._decl"),
+    ("radical_rt/io/transport.py", "self.bus._add"),
+    ("radical_rt/io/transport.py", "self.bus._find"),
+    ("radical_rt/io/transport.py", "self.bus._remove"),
     ("replayer/archive.py", "r._header"),  # the same class
     ("replayer/archive.py", "r._reader"),  # the same class
     ("replayer/archive.py", "r._summary"),  # the same class

@@ -19,7 +19,7 @@ import pytest
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
-from radical_rt.conventions import t_to_ns
+from radical_rt.contract.conventions import t_to_ns
 from replayer.archive import (
     INPUT_TOPICS,
     OUTPUT_TOPICS,

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from monitors.calreport import stays_below
-from radical_rt.batch import process
-from radical_rt.cli import main
+from radical_rt.apps.batch import process
+from radical_rt.apps.cli import main
 from replayer.archive import ArchiveReader
 from replayer.synth.api import synthesize
 

@@ -15,10 +15,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import checkpoint as ckpt
-from radical_rt import clock_layout as L
-from radical_rt.batch import make_processor
-from radical_rt.node import build_processors
+from radical_rt.apps.batch import make_processor
+from radical_rt.apps.node import build_processors
+from radical_rt.clock import clock_layout as L
+from radical_rt.io import checkpoint as ckpt
 from support.node import MemNode, feed_archive, input_messages
 
 REPO = Path(__file__).resolve().parents[1]
@@ -136,8 +136,8 @@ def test_clock_int_array_at_int64_max_is_refused(good_ckpt, tmp_path):
     path = _damaged(good_ckpt, mutate, tmp_path)
     code = textwrap.dedent(f"""
         import sys, msgpack
-        from radical_rt.checkpoint import CheckpointError
-        from radical_rt.node import build_processors, packb
+        from radical_rt.io.checkpoint import CheckpointError
+        from radical_rt.apps.node import build_processors, packb
         try:
             sp = build_processors(["v1"], resume={path!r})["v1"]
         except CheckpointError as exc:
@@ -175,7 +175,7 @@ def test_cli_resume_refusal_is_one_line_exit_2(good_ckpt, tmp_path, case):
     path = tmp_path / "c.ckpt"
     path.write_bytes(good_ckpt if case == "foreign" else good_ckpt[: len(good_ckpt) // 3])
     vehicle = "v2" if case == "foreign" else "v1"
-    r = subprocess.run([sys.executable, "-c", "import sys; from radical_rt.cli import main; sys.exit(main())", "node", "--vehicle", vehicle,
+    r = subprocess.run([sys.executable, "-c", "import sys; from radical_rt.apps.cli import main; sys.exit(main())", "node", "--vehicle", vehicle,
                         "--resume", str(path), "--listen", "tcp/127.0.0.1:1"],
                        capture_output=True, text=True, timeout=120,
                        env={**os.environ, "PYTHONPATH": str(REPO)})

@@ -10,9 +10,10 @@ import sys
 
 import pytest
 
-from radical_rt import __version__, zconfig
-from radical_rt.cli import build_parser, main, plain_text
-from radical_rt.transport import _one_line
+from radical_rt import __version__
+from radical_rt.apps.cli import build_parser, main, plain_text
+from radical_rt.io import zconfig
+from radical_rt.io.transport import _one_line
 from replayer.synth.api import synthesize
 
 MARKUP = re.compile(r"``|:[a-z]+:`|\.rs:\d+")
@@ -22,7 +23,7 @@ SUBCOMMANDS = [["synth"], ["process"], ["node"], ["replay"], ["record"], ["repor
 
 
 def _cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "radical_rt.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "radical_rt.apps.cli", *args], capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -43,7 +44,7 @@ def test_help_is_plain_text_with_a_description(argv, capsys):
 
 
 def test_plain_text_removes_markup():
-    assert plain_text("``--cold`` :class:`~radical_rt.stream.StreamProcessor` "
+    assert plain_text("``--cold`` :class:`~radical_rt.stream.processor.StreamProcessor` "
                       ":func:`radical_rt.x.f` text::") == \
         "--cold StreamProcessor radical_rt.x.f text:"
 

@@ -1,4 +1,4 @@
-"""SIRU clock (radical_rt.clock): sequence repair, counters, timing, determinism, checkpoints.
+"""SIRU clock (radical_rt.clock.siru_clock): sequence repair, counters, timing, determinism, checkpoints.
 
 Uses its own small generator of the CONTRACT §1.5 mechanism (independent of replayer.synth and of
 the engine): SIRU sample k at t0 + k T (1 + ε) + jitter, counter (tt0 + 10000 k) mod 2**32, bus
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from radical_rt.clock import COUNTER_NAMES, ClockConfig, GyroBatch, SiruClock
+from radical_rt.clock.siru_clock import COUNTER_NAMES, ClockConfig, GyroBatch, SiruClock
 
 T = 0.01
 WRAP = 2**32

@@ -6,9 +6,9 @@ import logging
 
 import numpy as np
 
-from radical_rt.batch import clock_line
-from radical_rt.clock import SiruClock
-from radical_rt.node_clock import ClockNotice
+from radical_rt.apps.batch import clock_line
+from radical_rt.apps.node_clock import ClockNotice
+from radical_rt.clock.siru_clock import SiruClock
 
 T = 0.01
 
@@ -49,7 +49,7 @@ def test_never_locked_is_said_in_the_summary_line():
     tag, tt = _reads(20000, 5.0, seed=2)  # 200 s at 5 ppm: no wrap
     clock = SiruClock()
     _push(clock, tag, tt)
-    from radical_rt.batch import clock_summary
+    from radical_rt.apps.batch import clock_summary
     line = clock_line(clock_summary(clock))
     assert "NEVER LOCKED" in line and "no sawtooth wrap" in line
 

@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from radical_rt.batch import make_processor
-from radical_rt.flags import Flag
-from radical_rt.params import Params, ParamTable
+from radical_rt.apps.batch import make_processor
+from radical_rt.contract.flags import Flag
+from radical_rt.contract.params import Params, ParamTable
 from support.node import MemNode, feed_archive, input_messages
 
 
@@ -76,7 +76,7 @@ def test_set_params_is_all_or_nothing(mn):
 def test_every_range_end_keeps_the_stream_running(msgs):
     """No value inside the documented ranges raises or hangs: each parameter at each end of its
     range, 3 s of stream each (one processor; the table reset in between)."""
-    from radical_rt.params import RANGES
+    from radical_rt.contract.params import RANGES
     sp = make_processor(ParamTable())
     part = [m for m in msgs if m[1] < 1030e9]
     for t, _ns, d in part[: len(part) // 2]:
@@ -111,7 +111,7 @@ def test_absurd_bump_is_refused(mn, sigma):
 
 
 def test_largest_bump_leaves_the_filter_healthy(mn, msgs):
-    from radical_rt.commands import BUMP_MAX_SI
+    from radical_rt.apps.commands import BUMP_MAX_SI
     e = mn.sp().engine
     for mode in ("add", "scale"):
         sigma = {g: [BUMP_MAX_SI[g]] * len(v) for g, v in e.sigmas().items()}

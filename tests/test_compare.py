@@ -8,7 +8,7 @@ import json
 import pytest
 
 from monitors import compare
-from radical_rt.batch import process
+from radical_rt.apps.batch import process
 from replayer.synth.api import synthesize
 
 

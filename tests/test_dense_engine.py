@@ -14,9 +14,9 @@ covariance within 1e-8 of the UD σ_i σ_j. Measured on this run: 2.3e-10 σ, 1.
 import numpy as np
 import pytest
 
-from radical_rt import ud
-from radical_rt.filter import Engine
-from radical_rt.updates import gated_update, gated_update_consider
+from radical_rt.engine.filter import Engine
+from radical_rt.kernels import ud
+from radical_rt.kernels.updates import gated_update, gated_update_consider
 from replayer.synth import synthesize
 from tests.oracles.dense_engine import (
     DenseEngine,
@@ -121,7 +121,7 @@ def both(tmp_path_factory):
 
 
 def _feed(sp, path):
-    from radical_rt.batch import INPUTS
+    from radical_rt.apps.batch import INPUTS
     from replayer.archive import ArchiveReader
 
     with ArchiveReader(str(path)) as reader:

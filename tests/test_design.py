@@ -16,12 +16,12 @@ import math
 import numpy as np
 import pytest
 
-from radical_rt.batch import process
-from radical_rt.design import analysis
-from radical_rt.design import plan as planmod
-from radical_rt.design.covariance import clock_lock_s
-from radical_rt.params import ParamTable
-from radical_rt.state import PARAM_GROUPS
+from radical_rt.apps.batch import process
+from radical_rt.apps.design import analysis
+from radical_rt.apps.design import plan as planmod
+from radical_rt.apps.design.covariance import clock_lock_s
+from radical_rt.contract.params import ParamTable
+from radical_rt.contract.state import PARAM_GROUPS
 
 SEED = 22
 
@@ -75,7 +75,7 @@ def test_clock_lock_time_matches_the_clock(processed):
 
 
 def test_cli_json_layout_and_bad_input(tmp_path, capsys):
-    from radical_rt.cli import main
+    from radical_rt.apps.cli import main
 
     out = tmp_path / "d.json"
     assert main(["design", "2006216", "--duration", "400", "--json", str(out), "--quiet"]) == 0
@@ -103,7 +103,7 @@ def test_time_to_target_definition():
 
 
 def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
-    from radical_rt.design.optimize import Candidate
+    from radical_rt.apps.design.optimize import Candidate
 
     c = Candidate(a_y=30.0, a_xz=10.0, hold_s=240.0, repeats=2, start_s=172.5, dwell_s=300.0)
     sc = planmod.load(c.scenario())
@@ -115,8 +115,8 @@ def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
 
 
 def test_pointing_constraints_of_the_messenger_maneuver():
-    from radical_rt.design.constraints import Pointing, check, tracker_visibility
-    from radical_rt.geometry import Geometry
+    from radical_rt.apps.design.constraints import Pointing, check, tracker_visibility
+    from radical_rt.contract.geometry import Geometry
 
     sc = planmod.load("2006216")
     prof, q0 = sc.profile(), sc.cfg["maneuver"]["q0_body_from_inertial"]

@@ -30,10 +30,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import ud
-from radical_rt.batch import INPUTS, make_processor
-from radical_rt.model import internal_from_contract
-from radical_rt.state import PARAM_GROUPS
+from radical_rt.apps.batch import INPUTS, make_processor
+from radical_rt.contract.state import PARAM_GROUPS
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import internal_from_contract
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario

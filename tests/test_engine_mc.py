@@ -38,8 +38,8 @@ import os
 import numpy as np
 import pytest
 
-from radical_rt.filter import Engine
-from radical_rt.state import PARAM_GROUPS
+from radical_rt.contract.state import PARAM_GROUPS
+from radical_rt.engine.filter import Engine
 from studies.montecarlo import MCConfig, chi2_mean_bounds, format_summary, run_many, summarize
 
 SEEDS = range(1, 21)

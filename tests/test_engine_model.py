@@ -4,10 +4,10 @@ statistics and the Schmidt consider update (docs/engine.md)."""
 import numpy as np
 import pytest
 
-from radical_rt import ud
-from radical_rt.conventions import ARCSEC, DEG_PER_HR, PPM
-from radical_rt.geometry import Geometry
-from radical_rt.model import (
+from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR, PPM
+from radical_rt.contract.geometry import Geometry
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import (
     contract_from_internal,
     correct_increment_lin,
     increment_jacobian_lin,
@@ -16,7 +16,7 @@ from radical_rt.model import (
     parity_rows_lin,
     refresh_axes,
 )
-from radical_rt.updates import gated_update_consider
+from radical_rt.kernels.updates import gated_update_consider
 
 GEO = Geometry()
 N_G = GEO.n_gyro
@@ -234,7 +234,7 @@ def test_gated_update_consider_is_the_schmidt_update():
 def test_set_state_rebuilds_derived_geometry():
     """Engine.set_state alone (no checkpoint module) leaves a ready engine: the scaled axes,
     (AAᵀ)⁻¹ and pseudo-inverse derived from xp equal the source's, and N is the saved one."""
-    from radical_rt.filter import Engine
+    from radical_rt.engine.filter import Engine
 
     rng = np.random.default_rng(11)
     src = Engine()
@@ -277,8 +277,8 @@ def test_attitude_error_propagation_matches_nonlinear_model():
 
 def test_contract_sigma_from_ud_equals_the_mapped_covariance():
     """EngineState.contract_sigma (UD factors, no P formed) = sqrt(diag(J P_pp Jᵀ))."""
-    from radical_rt.filter import Engine
-    from radical_rt.params import ParamTable
+    from radical_rt.contract.params import ParamTable
+    from radical_rt.engine.filter import Engine
     rng = np.random.default_rng(5)
     eng = Engine(ParamTable())
     ns = eng.ns

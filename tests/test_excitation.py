@@ -1,6 +1,6 @@
-"""Excitation monitor (radical_rt.excitation): warns when a maneuver leaves a group unexcited.
+"""Excitation monitor (radical_rt.engine.excitation): warns when a maneuver leaves a group unexcited.
 
-Covariance-only runs (the engine on noise-free data along the plan, radical_rt.design) of ±30°
+Covariance-only runs (the engine on noise-free data along the plan, radical_rt.apps.design) of ±30°
 slews: about x and z only — the y components of the sense axes stay unobservable, λ, du, dv never
 converge and the monitor must warn during the last slews (it is silent at rest) — and
 about x, y and z, which must end converged with the warning cleared. ≈ 6 s.
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radical_rt.design import plan as planmod
-from radical_rt.design.covariance import new_engine, run_plan
-from radical_rt.flags import Flag, flag_names
+from radical_rt.apps.design import plan as planmod
+from radical_rt.apps.design.covariance import new_engine, run_plan
+from radical_rt.contract.flags import Flag, flag_names
 
 
 def scenario(axes: str) -> dict:
@@ -86,7 +86,7 @@ def test_rotationrotation_angle_between_attitudes_matches_scipy_at_every_scale()
     (where 2·acos(|p·q|) keeps only half the digits) to nearly π."""
     from scipy.spatial.transform import Rotation
 
-    from radical_rt.excitation import rotation_angle_between
+    from radical_rt.engine.excitation import rotation_angle_between
 
     rng = np.random.default_rng(11)
     for angle in (1e-8, 1e-6, 1e-4, 0.01, 0.5, 2.0, 3.1):

@@ -1,4 +1,4 @@
-"""The engine's compiled fast path (radical_rt/fastpath.py) against the reference path.
+"""The engine's compiled fast path (radical_rt/engine/fastpath.py) against the reference path.
 
 The fast path must give bit-identical results: same output messages byte for byte, same final UD
 factors, estimates, counters and diagnostics. Each case runs the same input stream through a
@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from perf.fdi_table import fault_toml, synth
-from radical_rt import fastpath
-from radical_rt.batch import make_processor
-from radical_rt.params import ParamTable
+from radical_rt.apps.batch import make_processor
+from radical_rt.contract.params import ParamTable
+from radical_rt.engine import fastpath
 from support.streams import damaged, input_messages, make_archive
 
 
@@ -119,10 +119,10 @@ def test_deep_copy_continues_bit_identically(nominal):
 
 def test_compiled_intake_equals_the_general_decoding(nominal, monkeypatch):
     """The damaged stream fed as msgpack bytes (siru and tracker messages decoded, checked and
-    queued by the compiled intakes, radical_rt.siru_wire / tracker_queue) and as decoded maps
+    queued by the compiled intakes, radical_rt.stream.siru_wire / tracker_queue) and as decoded maps
     (msgpack, decode_siru / decode_tracker and the same checks): the same outputs byte for
     byte, the same rejections, the same final state."""
-    from radical_rt import stream
+    from radical_rt.stream import processor as stream
     msgs = damaged(nominal)
     as_maps = [(t, ns, msgpack.unpackb(d) if d[:1] != b"\xc1" else d) for t, ns, d in msgs]
     general = []
@@ -144,7 +144,7 @@ def test_compiled_intake_equals_the_general_decoding(nominal, monkeypatch):
 def test_packet_change_mid_stream_is_bit_identical(nominal):
     """New packets mid-stream (as set_packets does: a new map): the fast path's cached packet
     schedule follows, so both paths emit the same packets, decimated ones included."""
-    from radical_rt.telemetry import parse_packets
+    from radical_rt.stream.telemetry import parse_packets
     half = len(nominal) // 2
 
     def switched(fast: bool):

@@ -1,4 +1,4 @@
-"""Parity fault detection, isolation and reconfiguration (radical_rt/fdi.py, docs/fdi.md).
+"""Parity fault detection, isolation and reconfiguration (radical_rt/fdi/monitor.py, docs/fdi.md).
 
 * The detector's thresholds against their design false-alarm rate (seeded Monte Carlo), the CUSUM
   run length against Siegmund's formula, the convergence guard and the onset estimate.
@@ -22,8 +22,9 @@ import pytest
 from scipy.stats import chi2
 
 from perf.fdi_table import FAULT_T, KINDS, SPLIT_T, Run, evaluate, fault_toml, synth
-from radical_rt.batch import process
-from radical_rt.fdi import (
+from radical_rt.apps.batch import process
+from radical_rt.contract.flags import Flag, flag_names
+from radical_rt.fdi.monitor import (
     CUSUM_SHIFT,
     PERSIST_M,
     ParityDetector,
@@ -32,7 +33,6 @@ from radical_rt.fdi import (
     cusum_arl0,
     thresholds,
 )
-from radical_rt.flags import Flag, flag_names
 from support.node import MemNode, feed_archive, input_messages
 
 
@@ -247,7 +247,7 @@ def test_manual_exclude_include_around_the_monitor(short_fault):
 
 
 def test_flag_only_when_auto_exclude_is_off(short_fault):
-    from radical_rt.params import ParamTable
+    from radical_rt.contract.params import ParamTable
     table = ParamTable()
     table.set({"fdi_auto_exclude": False})
     s = process([str(short_fault)], None, table=table)
@@ -256,7 +256,7 @@ def test_flag_only_when_auto_exclude_is_off(short_fault):
 
 
 def test_disabled_monitor_stays_silent(short_fault):
-    from radical_rt.params import ParamTable
+    from radical_rt.contract.params import ParamTable
     table = ParamTable()
     table.set({"fdi_enabled": False})
     s = process([str(short_fault)], None, table=table)
@@ -267,7 +267,7 @@ def test_bookkeeping_runs_at_each_parity_sum_and_at_least_every_check_max(short_
     """Outside an alarm the monitor's bookkeeping runs at the window close of each parity sum
     (where the compiled path hands over anyway) and, with no sums (three gyros after the
     isolation), every CHECK_MAX_S of engine time."""
-    from radical_rt.fdi import CHECK_MAX_S, FaultMonitor
+    from radical_rt.fdi.monitor import CHECK_MAX_S, FaultMonitor
     runs, sums = [], []
     orig_gen, orig_sum = FaultMonitor._check_gen, FaultMonitor.on_parity_sum
 

@@ -1,4 +1,4 @@
-"""The compiled hypothesis bank (radical_rt/fdi_hypotheses.py, kernels in radical_rt/fdi_bank.py)
+"""The compiled hypothesis bank (radical_rt/fdi/fdi_hypotheses.py, kernels in radical_rt/fdi/fdi_bank.py)
 against the Python bank it replaced (tests/oracles/fdi_bank_py.py), on seeded fault scenarios.
 
 Each scenario (2006216, seed 1, cold start, one gyro fault) runs twice through the batch
@@ -24,9 +24,9 @@ import numpy as np
 import pytest
 
 from perf.fdi_table import fault_toml, synth
-from radical_rt.batch import make_processor
-from radical_rt.fdi import FaultMonitor
-from radical_rt.fdi_hypotheses import HypothesisBank
+from radical_rt.apps.batch import make_processor
+from radical_rt.fdi.fdi_hypotheses import HypothesisBank
+from radical_rt.fdi.monitor import FaultMonitor
 from tests.oracles.fdi_bank_py import PythonHypothesisBank
 
 SCENARIOS = {  # name → (fault, duration [s]); gyro 0..3 = A..D, times from the cold start

@@ -1,4 +1,4 @@
-"""Unit tests of the bank kernels (radical_rt/fdi_bank.py) against dense numpy formulas of
+"""Unit tests of the bank kernels (radical_rt/fdi/fdi_bank.py) against dense numpy formulas of
 docs/fdi.md §3.2, on seeded random inputs; the same tests run again with NUMBA_DISABLE_JIT=1 in a
 subprocess (the kernels' source as plain Python)."""
 
@@ -12,12 +12,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.fdi_bank import bank_flush, bank_propagate, bank_tracker, decision_due, rows_after
-from radical_rt.fdi_detect import chi2_isf
-from radical_rt.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
-from radical_rt.model import tracker_residual
-from radical_rt.propagate import propagate_window
-from radical_rt.rotation import quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.fdi.fdi_bank import (
+    bank_flush,
+    bank_propagate,
+    bank_tracker,
+    decision_due,
+    rows_after,
+)
+from radical_rt.fdi.fdi_detect import chi2_isf
+from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
+from radical_rt.kernels.model import tracker_residual
+from radical_rt.kernels.propagate import propagate_window
+from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
 
 NH, NPAR, N = 5, 23, 4
 PHI_COL, LAT_COL = 20, 22
@@ -54,7 +60,7 @@ def _rot(rng):
 def _tracker_reference(q_meas, n_stars, R_nom, phi, dt_ex, st_sigma, ref, sig_t, gate, q, omega, Ptt,
                        Ptp, Ppp, ll, nis):
     """Dense numpy form of one tracker sample for every hypothesis (ST2: φ2 and τ columns)."""
-    from radical_rt.model import apply_body_rotation
+    from radical_rt.kernels.model import apply_body_rotation
     out = []
     for h in range(NH):
         qe = q[h].copy()
@@ -97,7 +103,7 @@ def test_tracker_kernel_matches_dense_schmidt_update():
     # R_st_from_inertial = R(noise) R_nom R(φ2)ᵀ R_body_from_inertial at the extrapolated epoch
     from scipy.spatial.transform import Rotation
 
-    from radical_rt.model import apply_body_rotation
+    from radical_rt.kernels.model import apply_body_rotation
     qe = q[0].copy()
     apply_body_rotation(qe, omega[0] * 0.013, np.empty(4), np.empty(4))
     Rm = (Rotation.from_rotvec(2e-5 * rng.standard_normal(3)).as_matrix() @ R_nom
@@ -171,7 +177,7 @@ def test_propagate_runs_compose_like_one_run_of_propagate_window():
     m = 30
     W = np.array([[1, 1, 1, 1], [1, -1, 1, -1], [1, 1, -1, -1]], float) / np.sqrt(3.0)
     U_ax, V_ax = np.roll(W, 1, axis=0), np.roll(W, 2, axis=0)
-    from radical_rt.model import refresh_axes
+    from radical_rt.kernels.model import refresh_axes
     xp = 1e-5 * rng.standard_normal(5 * N + 3)
     A, Minv, Gp, Nv = np.zeros((3, N)), np.eye(3), np.zeros((3, N)), np.zeros((N, 1))
     refresh_axes(xp, W, U_ax, V_ax, np.array([[0.5], [-0.5], [-0.5], [0.5]]), A, Minv, Gp, Nv)
@@ -250,7 +256,8 @@ def test_kernels_without_jit():
 def test_numba_cache_fingerprint_covers_the_bank_kernels(tmp_path, monkeypatch):
     """The bank kernels embed propagate/model/ud/updates kernels: their module is one of the
     kernel modules whose contents key every cached kernel of the package (radical_rt._jit)."""
-    from radical_rt import _jit, fdi_bank
+    from radical_rt import _jit
+    from radical_rt.fdi import fdi_bank
     src = Path(fdi_bank.__file__)
     pkg = tmp_path / "pkg"
     pkg.mkdir()

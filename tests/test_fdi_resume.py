@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from perf.fdi_table import fault_toml, synth
-from radical_rt import checkpoint as ckpt
-from radical_rt.batch import make_processor
-from radical_rt.node import build_processors
+from radical_rt.apps.batch import make_processor
+from radical_rt.apps.node import build_processors
+from radical_rt.io import checkpoint as ckpt
 from support.node import input_messages
 
 KEYS = ("gyro", "t_alarm", "t_isolated", "t_onset_est", "t_snapshot", "test", "llr_margin")

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.batch import process
-from radical_rt.cli import main
-from radical_rt.conventions import ARCSEC, DEG_PER_HR
+from radical_rt.apps.batch import process
+from radical_rt.apps.cli import main
+from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR
 from replayer.archive import ArchiveReader
 from replayer.synth.api import synthesize
 

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt import zconfig
-from radical_rt.node import FilterNode, build_processors
-from radical_rt.transport import ZenohTransport
+from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.io import zconfig
+from radical_rt.io.transport import ZenohTransport
 from support.node import input_messages, make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh
@@ -59,7 +59,7 @@ def test_live_foxglove_bridge(tmp_path):
                       block_outputs=True)
     node.start()
     bridge = subprocess.Popen(
-        [sys.executable, "-m", "radical_rt.cli", "monitor", "foxglove", "--vehicle", "fx",
+        [sys.executable, "-m", "radical_rt.apps.cli", "monitor", "foxglove", "--vehicle", "fx",
          "--port", str(port), "--connect", ep, "--duration", "90"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     client = js = None
@@ -140,7 +140,7 @@ def test_live_foxglove_bridge(tmp_path):
 
 
 def test_foxglove_cli_errors(capsys):
-    from radical_rt.cli import main
+    from radical_rt.apps.cli import main
 
     assert main(["monitor", "foxglove"]) == 2
     assert "--vehicle" in capsys.readouterr().err

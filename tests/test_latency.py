@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.batch import INPUTS, make_processor
-from radical_rt.filter import Engine
-from radical_rt.state import PARAM_GROUPS
+from radical_rt.apps.batch import INPUTS, make_processor
+from radical_rt.contract.state import PARAM_GROUPS
+from radical_rt.engine.filter import Engine
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
@@ -143,7 +143,7 @@ def test_calibration_unaffected_by_latency_offset(lagged_run):
 
 def test_frozen_latency_state_runs_normally(tmp_path):
     """latency_sigma0_s = q_latency = 0 freezes τ at 0 (floored prior, no numeric fault)."""
-    from radical_rt.params import ParamTable
+    from radical_rt.contract.params import ParamTable
 
     toml = tmp_path / "s.toml"
     toml.write_text('base = "2006216"\nt_start_s = 1000.0\nduration_s = 60.0\n')

@@ -1,4 +1,4 @@
-"""Flat-array layouts declared once (radical_rt.layout.Fields): the helper itself, and every
+"""Flat-array layouts declared once (radical_rt.contract.layout.Fields): the helper itself, and every
 layout module's constants against its table (a constant edited by hand, a field inserted without
 its constant, or overlapping parts of one array fail here)."""
 
@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radical_rt import clock_layout, fastpath_layout, stream_layout
-from radical_rt.layout import Fields
+from radical_rt.clock import clock_layout
+from radical_rt.contract.layout import Fields
+from radical_rt.engine import fastpath_layout
+from radical_rt.stream import stream_layout
 
 
 def test_offsets_follow_the_declaration_order():
@@ -73,7 +75,7 @@ def test_clock_layout_constants_are_the_table():
 
 
 def test_clock_params_fill_every_parameter():
-    from radical_rt.clock import ClockConfig
+    from radical_rt.clock.siru_clock import ClockConfig
     p = ClockConfig().params()
     assert p.shape == (clock_layout.NPRM,) and p[clock_layout.P_T] == 0.01
     assert p[clock_layout.P_WRAP] == 2.0**32 and np.isfinite(p).all()
@@ -84,7 +86,7 @@ def test_stream_layout_constants_are_the_table():
     _constants(S, "SS_", S.SS)
     _constants(S, "SI_", S.SI)
     assert S.SS_LAST + 1 == S.SS_LAST_ST1 and S.SS_LAST + 2 == S.SS_LAST_ST2
-    from radical_rt.tracker_queue import TrackerQueue
+    from radical_rt.stream.tracker_queue import TrackerQueue
     tq = TrackerQueue()
     assert tq.ss.shape == (S.SS.end,) and tq.si.shape == (S.SI.end,)
 
@@ -95,7 +97,7 @@ def test_fastpath_layout_constants_are_the_table():
     _constants(F, "IO_", F.IO)
     _constants(F, "CNT_", F.CNT)
     assert F.IO_LAST_ST + 1 == F.IO_LAST_ST1 and F.IO_LAST_ST + 2 == F.IO_LAST_ST2
-    from radical_rt.filter import Engine
+    from radical_rt.engine.filter import Engine
     eng = Engine()
     assert not F.CFG.check(eng._fast_cfg) and eng._fast_cfg.shape == (F.CFG.end,)
     assert not F.IO.check(eng._fast_io) and not F.CNT.check(eng._fast_cnt)
@@ -108,8 +110,8 @@ def test_engine_layout_packs_every_slot_as_declared():
     """The packed engine state against its table: every slot's view has the declared buffer and
     rank, views do not overlap, and the compiled unpack returns the same arrays (values and
     shapes) as the engine's attributes."""
-    from radical_rt import engine_layout as EL
-    from radical_rt.filter import Engine
+    from radical_rt.engine import engine_layout as EL
+    from radical_rt.engine.filter import Engine
 
     eng = Engine()
     bufs = (eng._fb, eng._ib, eng._bb)

@@ -13,11 +13,11 @@ import time
 import msgpack
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.eos import make_eos
-from radical_rt.flags import Flag
-from radical_rt.node import FilterNode, build_processors
-from radical_rt.transport import ZenohTransport
+from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.contract.flags import Flag
+from radical_rt.io import zconfig
+from radical_rt.io.transport import ZenohTransport
+from radical_rt.stream.eos import make_eos
 from replayer.replay import replay
 from support.node import MemNode, input_messages, make_archive, wait_for
 

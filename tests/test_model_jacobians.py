@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.conventions import ARCSEC
-from radical_rt.geometry import Geometry
-from radical_rt.model import masked_pinv, tracker_residual
+from radical_rt.contract.conventions import ARCSEC
+from radical_rt.contract.geometry import Geometry
+from radical_rt.kernels.model import masked_pinv, tracker_residual
 
 GEO = Geometry()
 N_G = GEO.n_gyro

@@ -11,8 +11,8 @@ import pytest
 
 from monitors.common import fmt_est_sigma
 from monitors.live import LatestStore
-from radical_rt.conventions import DEG_PER_HR, PPM
-from radical_rt.flags import Flag
+from radical_rt.contract.conventions import DEG_PER_HR, PPM
+from radical_rt.contract.flags import Flag
 from support.packets import large_packet
 
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.flags import Flag
+from radical_rt.contract.flags import Flag
+from radical_rt.io import zconfig
 
 sys.path.insert(0, str(Path(__file__).parent))
 from support.packets import large_packet  # noqa: E402
@@ -148,7 +148,7 @@ def test_web_dashboard_live_in_chromium(tmp_path):
     log = tmp_path / "monitor_web.log"
     logf = log.open("w")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "radical_rt.cli", "monitor", "web", "--port", str(wport),
+        [sys.executable, "-m", "radical_rt.apps.cli", "monitor", "web", "--port", str(wport),
          "--connect", zep, "--period-ms", str(PERIOD_MS), "--stale-s", str(STALE_S)],
         stdout=logf, stderr=subprocess.STDOUT, text=True, env=env)
     url = f"http://127.0.0.1:{wport}/"

@@ -10,9 +10,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import commands
-from radical_rt.checkpoint import read
-from radical_rt.flags import Flag
+from radical_rt.apps import commands
+from radical_rt.contract.flags import Flag
+from radical_rt.io.checkpoint import read
 from support.node import MemNode, feed_archive, input_messages
 
 
@@ -134,7 +134,7 @@ def test_bump_add_and_scale(mn):
 def test_bump_in_paper_units_both_ways(mn):
     """Names with the paper unit (as set_params' bump_* names) in the request and the reply; the
     bare group name is the contract's SI form and bumps exactly the same."""
-    from radical_rt.conventions import ARCSEC, DEG_PER_HR, PPM
+    from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR, PPM
 
     e = mn.sp().engine
     var0 = e.variances()
@@ -321,9 +321,9 @@ def test_timed_out_command_is_never_applied(warm_msgs):
 
 
 def test_checkpoint_keeps_packet_triggers():
-    from radical_rt.batch import make_processor
-    from radical_rt.checkpoint import capture, restore
-    from radical_rt.telemetry import parse_packets
+    from radical_rt.apps.batch import make_processor
+    from radical_rt.io.checkpoint import capture, restore
+    from radical_rt.stream.telemetry import parse_packets
 
     src = make_processor()
     src.packets = parse_packets({"small": {"trigger": "window"}, "large": {"trigger": "sample"}})

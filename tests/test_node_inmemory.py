@@ -11,11 +11,11 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import checkpoint as ckpt
-from radical_rt.batch import make_processor, process
-from radical_rt.flags import Flag
-from radical_rt.node import FilterNode, build_processors, warm_up
-from radical_rt.transport import InMemoryBus, InMemoryTransport
+from radical_rt.apps.batch import make_processor, process
+from radical_rt.apps.node import FilterNode, build_processors, warm_up
+from radical_rt.contract.flags import Flag
+from radical_rt.io import checkpoint as ckpt
+from radical_rt.io.transport import InMemoryBus, InMemoryTransport
 from replayer.archive import ArchiveReader
 from support.node import (
     MemNode,
@@ -441,7 +441,7 @@ def _fifo_allowed() -> bool:
 
 
 def test_rt_priority_runs_the_loop_sched_fifo_or_refuses_clearly(archives):  # noqa: F811
-    from radical_rt.node import NodeStartError
+    from radical_rt.apps.node import NodeStartError
 
     with pytest.raises(ValueError, match="rt_priority"):
         FilterNode(InMemoryTransport(InMemoryBus()), build_processors(["v1"]), rt_priority=0)
@@ -469,8 +469,8 @@ def test_rt_priority_runs_the_loop_sched_fifo_or_refuses_clearly(archives):  # n
 
 
 def test_rt_priority_refused_leaves_nothing_running(monkeypatch):
-    from radical_rt import node as node_mod
-    from radical_rt.node import NodeStartError
+    from radical_rt.apps import node as node_mod
+    from radical_rt.apps.node import NodeStartError
 
     def refuse(*_a):
         raise PermissionError(1, "Operation not permitted")

@@ -14,12 +14,12 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import checkpoint as ckpt
-from radical_rt import zconfig
-from radical_rt.batch import make_processor, process
-from radical_rt.cli import main as radical_main
-from radical_rt.node import FilterNode, build_processors
-from radical_rt.transport import ZenohTransport
+from radical_rt.apps.batch import make_processor, process
+from radical_rt.apps.cli import main as radical_main
+from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.io import checkpoint as ckpt
+from radical_rt.io import zconfig
+from radical_rt.io.transport import ZenohTransport
 from replayer.archive import ArchiveReader
 from support.node import cmd, input_messages, wait_for
 
@@ -135,7 +135,7 @@ class NodeProc:
         self.log = tmp / f"{name}.log"
         self.f = open(self.log, "wb")
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.p = subprocess.Popen([sys.executable, "-m", "radical_rt.cli", "node", "--listen",
+        self.p = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "node", "--listen",
                                    self.ep, *args], stdout=self.f, stderr=subprocess.STDOUT,
                                   cwd=ROOT, env=env)
         wait_for(lambda: "ready" in self.text() or self.p.poll() is not None, 120, 0.05,
@@ -218,7 +218,7 @@ def test_cli_errors_are_one_line(args, match, capsys):
 
 
 def test_cli_checkpoint_path_refused_while_parsing(tmp_path, capsys):
-    """The one output-path policy (radical_rt.outpaths): a checkpoint path that cannot be created
+    """The one output-path policy (radical_rt.io.outpaths): a checkpoint path that cannot be created
     is a usage error before the node starts (missing parents would be created)."""
     (tmp_path / "f").write_text("")
     with pytest.raises(SystemExit) as exc:

@@ -9,8 +9,8 @@ import json
 import pytest
 
 from monitors import compare
-from radical_rt.cli import build_parser, main
-from radical_rt.outpaths import OutputPathError, output_dir, output_file, prepare_output
+from radical_rt.apps.cli import build_parser, main
+from radical_rt.io.outpaths import OutputPathError, output_dir, output_file, prepare_output
 from replayer.synth.api import synthesize
 
 

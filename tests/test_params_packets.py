@@ -6,10 +6,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt.conventions import ARCSEC, DEG_PER_HR
-from radical_rt.packets import InputError, decode_siru, decode_tracker, unpack
-from radical_rt.params import ParamError, ParamTable, to_si
-from radical_rt.telemetry import PacketError, load_packets, parse_packets
+from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR
+from radical_rt.contract.params import ParamError, ParamTable, to_si
+from radical_rt.stream.packets import InputError, decode_siru, decode_tracker, unpack
+from radical_rt.stream.telemetry import PacketError, load_packets, parse_packets
 
 
 def test_defaults_follow_the_paper():
@@ -105,7 +105,7 @@ def test_siru_tag_beyond_int64_is_a_clear_rejection():
 def test_tracker_short_path_equals_checked_path():
     """Well-formed float messages take decode_tracker's short path; its result is the checked
     path's, bit for bit (same normalization sum and divisions)."""
-    from radical_rt.packets import _decode_tracker_checked
+    from radical_rt.stream.packets import _decode_tracker_checked
     rng = np.random.default_rng(7)
     for _ in range(200):
         q = rng.normal(size=4)

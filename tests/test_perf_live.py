@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from perf import bench_capacity, bench_latency, bench_startup, live
-from radical_rt.node import LoopTiming
+from radical_rt.apps.node import LoopTiming
 from support.node import MemNode
 
 
@@ -113,7 +113,7 @@ def test_analysis_recovers_known_latencies(stream):
 
 
 def test_packet_presets_parse(tmp_path):
-    from radical_rt.telemetry import load_packets
+    from radical_rt.stream.telemetry import load_packets
     presets = live.packet_presets()
     assert presets["window"] is not None
     for name, text in presets.items():
@@ -130,9 +130,9 @@ def test_packet_presets_parse(tmp_path):
 
 
 def test_node_timing_out_refuses_an_impossible_path_before_starting(tmp_path, capsys):
-    """The output-path policy (radical_rt.outpaths): a missing directory is created, a path that
+    """The output-path policy (radical_rt.io.outpaths): a missing directory is created, a path that
     cannot be one (a file in the way) is a usage error at parse time, before the node starts."""
-    from radical_rt.cli import main
+    from radical_rt.apps.cli import main
     (tmp_path / "afile").write_text("x")
     with pytest.raises(SystemExit) as exc:
         main(["node", "--vehicle", "v", "--timing-out", str(tmp_path / "afile" / "t.npz")])

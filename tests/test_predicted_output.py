@@ -1,4 +1,4 @@
-"""The low-latency, sample-triggered telemetry (tlm/small by default; radical_rt.stream.now()).
+"""The low-latency, sample-triggered telemetry (tlm/small by default; radical_rt.stream.processor.now()).
 
 * ``predict_attitude`` propagates exactly as the filter's own propagation does (same samples,
   same calibration → the same quaternion);
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.batch import INPUTS, make_processor
-from radical_rt.clock import GyroBatch
-from radical_rt.filter import Engine
-from radical_rt.propagate import predict_attitude
-from radical_rt.telemetry import PacketError, parse_packets
+from radical_rt.apps.batch import INPUTS, make_processor
+from radical_rt.clock.siru_clock import GyroBatch
+from radical_rt.engine.filter import Engine
+from radical_rt.kernels.propagate import predict_attitude
+from radical_rt.stream.telemetry import PacketError, parse_packets
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
@@ -143,7 +143,7 @@ def test_gyro_batch_prediction_skips_undetermined_samples():
 
 
 def test_clock_pending_is_the_held_back_read():
-    from radical_rt.clock import ClockConfig, SiruClock
+    from radical_rt.clock.siru_clock import ClockConfig, SiruClock
 
     clk = SiruClock(ClockConfig(), n_gyro=4)
     assert clk.pending() is None
@@ -161,7 +161,7 @@ def test_clock_pending_is_the_held_back_read():
 def test_sample_schedule_never_skips_on_jitter_or_offset(period, every):
     """100 Hz samples with a 100 ppm slow oscillator and ±20 µs jitter: a sample-triggered packet
     with period_s = k samples is published on exactly every k-th sample."""
-    from radical_rt.telemetry import PacketSpec
+    from radical_rt.stream.telemetry import PacketSpec
 
     rng = np.random.default_rng(3)
     t = 1000.0 + np.arange(5000) * 0.01 * (1 + 100e-6) + rng.uniform(-2e-5, 2e-5, 5000)

@@ -12,9 +12,9 @@ import time
 import msgpack
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.node import FilterNode, build_processors
-from radical_rt.transport import ZenohTransport
+from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.io import zconfig
+from radical_rt.io.transport import ZenohTransport
 from support.node import wait_for
 
 pytestmark = pytest.mark.zenoh
@@ -88,7 +88,7 @@ def test_slow_consumer_flood_is_byte_bounded_and_counted():
 def test_queue_bytes_arguments():
     import argparse
 
-    from radical_rt.node_cli import _check, add_arguments
+    from radical_rt.apps.node_cli import _check, add_arguments
     p = argparse.ArgumentParser()
     add_arguments(p)
 

@@ -19,8 +19,8 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from radical_rt import zconfig
-from radical_rt.cli import main as cli_main
+from radical_rt.apps.cli import main as cli_main
+from radical_rt.io import zconfig
 from replayer.archive import ArchiveReader, TruncatedArchiveWarning
 from replayer.record import RecordError, bus_time_ns, parse_topics, record
 from replayer.schemas import SCHEMAS
@@ -91,7 +91,7 @@ def test_parse_topics():
 @pytest.mark.parametrize("out, needle", [("{tmp}/f/x.mcap", "in the way"),
                                          ("{tmp}", "is a directory")])
 def test_cli_bad_output_refused_while_parsing(out, needle, tmp_path, capsys):
-    """Output paths follow the one policy of radical_rt.outpaths: missing parents are created,
+    """Output paths follow the one policy of radical_rt.io.outpaths: missing parents are created,
     an impossible path is a usage error before anything runs."""
     (tmp_path / "f").write_text("")
     with pytest.raises(SystemExit) as exc:
@@ -241,7 +241,7 @@ def test_idle_recorder_flushes_a_readable_prefix(tmp_path):
 @pytest.mark.zenoh
 def test_sigint_subprocess_closes_cleanly(tmp_path):
     e, out = ep(), tmp_path / "int.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "radical_rt.cli", "record", "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "record", "-o", str(out),
                              "--vehicle", "v1", "--listen", e], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
@@ -273,7 +273,7 @@ def test_connecting_recorder_waits_for_the_endpoint(tmp_path):
     """`radical record --connect EP` started before anything listens at EP: it says it waits,
     connects when EP comes up (a client retrying), and records."""
     e, out = ep(), tmp_path / "late.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "radical_rt.cli", "record", "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "record", "-o", str(out),
                              "--vehicle", "v1", "--connect", e], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:

@@ -18,8 +18,8 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.cli import main as cli_main
+from radical_rt.apps.cli import main as cli_main
+from radical_rt.io import zconfig
 from replayer.archive import INPUT_TOPICS, ArchiveReader, ArchiveWriter, TruncatedArchiveWarning
 from replayer.record import record
 from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
@@ -106,7 +106,7 @@ class Recorder:
 
 
 def cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "radical_rt.cli", *args]
+    return [sys.executable, "-m", "radical_rt.apps.cli", *args]
 
 
 def n_msgs(d: dict[str, list]) -> dict[str, int]:

@@ -11,10 +11,10 @@ import pytest
 
 pytest.importorskip("matplotlib", reason="pip install matplotlib (radical report)")
 
-from radical_rt.batch import process  # noqa: E402
-from radical_rt.cli import main  # noqa: E402
-from radical_rt.conventions import to_paper_units  # noqa: E402
-from radical_rt.paper_table import ORDER, element_names  # noqa: E402
+from radical_rt.apps.batch import process  # noqa: E402
+from radical_rt.apps.cli import main  # noqa: E402
+from radical_rt.contract.conventions import to_paper_units  # noqa: E402
+from radical_rt.contract.paper_table import ORDER, element_names  # noqa: E402
 from replayer.archive import ArchiveReader  # noqa: E402
 from replayer.synth.api import synthesize  # noqa: E402
 

@@ -11,8 +11,8 @@ pytest.importorskip("matplotlib")
 
 from monitors.report import ArchiveData, table_markdown  # noqa: E402
 from monitors.report_ops import attitude_error, common_axis, load_ops, split_streams  # noqa: E402
-from radical_rt.batch import process  # noqa: E402
-from radical_rt.cli import main  # noqa: E402
+from radical_rt.apps.batch import process  # noqa: E402
+from radical_rt.apps.cli import main  # noqa: E402
 from replayer.synth.api import synthesize  # noqa: E402
 
 
@@ -130,11 +130,11 @@ def test_html_has_nis_flags_euler_and_marker_panels(page):
     legends = {_attr(i, "label").get("value") for m in models if m["name"] == "Legend"
                for i in _attr(m, "items") or [] if isinstance(_attr(i, "label"), dict)}
     assert "stream boundary" in legends
-    # flag timeline: one categorical row per flag bit set, named by radical_rt.flags.Flag
+    # flag timeline: one categorical row per flag bit set, named by radical_rt.contract.flags.Flag
     flag_fig = figs["ops:p:flag timeline"]
     rows = _attr(_attr(flag_fig, "y_range"), "factors") if isinstance(
         _attr(flag_fig, "y_range"), dict) else None
-    from radical_rt.flags import Flag
+    from radical_rt.contract.flags import Flag
 
     assert rows and set(rows) <= {f.name for f in Flag}
     assert any(n.startswith("flag:") for n in names if isinstance(n, str))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_node_zenoh import NodeProc, publish, wait_fed
 
-from radical_rt import checkpoint as ckpt
+from radical_rt.io import checkpoint as ckpt
 from support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh

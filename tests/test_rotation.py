@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt import geometry as geo
-from radical_rt import rotation as rot
-from radical_rt.state import LAYOUT, N_STATES, StateLayout
+from radical_rt.contract import geometry as geo
+from radical_rt.contract.state import LAYOUT, N_STATES, StateLayout
+from radical_rt.kernels import rotation as rot
 
 SEED = 20240517
 N_RANDOM = 300

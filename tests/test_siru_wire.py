@@ -1,4 +1,4 @@
-"""The compiled siru decoder (radical_rt.siru_wire) against the general path (msgpack +
+"""The compiled siru decoder (radical_rt.stream.siru_wire) against the general path (msgpack +
 decode_siru): the same columns for every message it accepts, and a fallback for everything the
 general path rejects or that is not in the plain layout."""
 
@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radical_rt.filter import Engine
-from radical_rt.packets import InputError, decode_siru, unpack
-from radical_rt.siru_wire import SiruWire
-from radical_rt.stream import StreamProcessor
+from radical_rt.engine.filter import Engine
+from radical_rt.stream.packets import InputError, decode_siru, unpack
+from radical_rt.stream.processor import StreamProcessor
+from radical_rt.stream.siru_wire import SiruWire
 
 KEYS = ("v", "t_bus", "tt", "dtheta", "status")
 

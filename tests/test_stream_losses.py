@@ -8,8 +8,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt.batch import make_processor, make_summary, process
-from radical_rt.eos import make_eos
+from radical_rt.apps.batch import make_processor, make_summary, process
+from radical_rt.stream.eos import make_eos
 from support.node import MemNode, input_messages, make_archive, wait_for
 
 SI_KEYS = ("estimate", "sigma")
@@ -156,8 +156,8 @@ def test_input_queue_is_bounded_in_bytes():
     and counts what it drops (before: bounded in samples only)."""
     import threading
 
-    from radical_rt.node import FilterNode, build_processors
-    from radical_rt.transport import InMemoryBus, InMemoryTransport
+    from radical_rt.apps.node import FilterNode, build_processors
+    from radical_rt.io.transport import InMemoryBus, InMemoryTransport
 
     bus = InMemoryBus()
     node = FilterNode(InMemoryTransport(bus), build_processors(["v1"]), queue_size=4096,

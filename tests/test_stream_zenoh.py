@@ -15,10 +15,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.batch import process
-from radical_rt.node import FilterNode, build_processors
-from radical_rt.transport import ZenohTransport
+from radical_rt.apps.batch import process
+from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.io import zconfig
+from radical_rt.io.transport import ZenohTransport
 from replayer.replay import replay
 from support.node import make_archive, wait_for
 
@@ -46,7 +46,7 @@ def test_client_right_after_ready_is_answered(tmp_path):
     returned no reply at once (0 replies in 4 of 4 tries here)."""
     ep = _ep()
     log = open(tmp_path / "node.log", "w")
-    p = subprocess.Popen([sys.executable, "-m", "radical_rt.cli", "node", "--vehicle", "rd",
+    p = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "node", "--vehicle", "rd",
                           "--listen", ep], stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:

@@ -8,10 +8,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from radical_rt import checkpoint as ckpt
-from radical_rt.batch import make_processor, process
-from radical_rt.eos import decode_eos, make_eos
-from radical_rt.params import ParamTable
+from radical_rt.apps.batch import make_processor, process
+from radical_rt.contract.params import ParamTable
+from radical_rt.io import checkpoint as ckpt
+from radical_rt.stream.eos import decode_eos, make_eos
 from replayer.archive import ArchiveReader, ArchiveWriter
 from support.node import MemNode, feed_archive, input_messages
 
@@ -63,7 +63,7 @@ def test_every_output_message_carries_the_stream_index(two):
 
 
 def test_process_prints_one_line_per_stream(archives, tmp_path, capsys):  # noqa: F811
-    from radical_rt.cli import main
+    from radical_rt.apps.cli import main
 
     a, b = str(archives["a60"]), str(archives["b60"])
     assert main(["process", a, b, "--summary", str(tmp_path / "s.json")]) == 0

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.conventions import DEG_PER_HR
+from radical_rt.contract.conventions import DEG_PER_HR
 from replayer.archive import ArchiveReader
 from replayer.schemas import validate
 from replayer.synth import synthesize

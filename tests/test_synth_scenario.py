@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.conventions import SI_PER_PAPER_UNIT
+from radical_rt.contract.conventions import SI_PER_PAPER_UNIT
 from replayer.synth import BUILTINS, ScenarioError, cli, load_scenario
 from replayer.synth.scenario import GROUPS, print_default
 
@@ -135,14 +135,14 @@ def test_cli_exit_codes(tmp_path, capsys):
     assert 'name = "alternate"' in printed and "[[faults]]" not in printed
 
 
-FORBIDDEN = ("radical_rt.model", "radical_rt.filter", "radical_rt.params", "radical_rt.ud",
-             "radical_rt.propagate", "radical_rt.clock", "radical_rt.fdi", "radical_rt.batch")
+FORBIDDEN = ("radical_rt.kernels.model", "radical_rt.engine.filter", "radical_rt.contract.params", "radical_rt.kernels.ud",
+             "radical_rt.kernels.propagate", "radical_rt.clock.siru_clock", "radical_rt.fdi.monitor", "radical_rt.apps.batch")
 
 
 def test_simulator_does_not_import_the_filter():
-    # radical_rt.outpaths: the command line's output-path policy (synth -o), no filter code
-    allowed = {"radical_rt", "radical_rt.conventions", "radical_rt.geometry", "radical_rt.rotation",
-               "radical_rt.outpaths"}
+    # radical_rt.io.outpaths: the command line's output-path policy (synth -o), no filter code
+    allowed = {"radical_rt", "radical_rt.contract.conventions", "radical_rt.contract.geometry", "radical_rt.kernels.rotation",
+               "radical_rt.io.outpaths"}
     for path in SYNTH_DIR.glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             names = []

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from radical_rt.geometry import U_NOM, V_NOM, W_NOM
+from radical_rt.contract.geometry import U_NOM, V_NOM, W_NOM
 from replayer.archive import ArchiveReader
 from replayer.synth import load_scenario, synthesize
 from replayer.synth.simulator import stream

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.batch import make_processor, process
+from radical_rt.apps.batch import make_processor, process
 from replayer.archive import ArchiveWriter
 from support.node import input_messages, make_archive
 

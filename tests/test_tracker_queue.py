@@ -1,4 +1,4 @@
-"""The tracker queue and its compiled intake (radical_rt.tracker_queue) against the stream's
+"""The tracker queue and its compiled intake (radical_rt.stream.tracker_queue) against the stream's
 earlier Python logic (a heap ordered by epoch, tracker, arrival; the same time checks, late test
 and release test), and the compiled decoding against msgpack + decode_tracker."""
 
@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radical_rt.packets import MAX_N_STARS, InputError, decode_tracker, unpack
-from radical_rt.tracker_queue import (
+from radical_rt.stream.packets import MAX_N_STARS, InputError, decode_tracker, unpack
+from radical_rt.stream.tracker_queue import (
     IN_BACKWARDS,
     IN_DUPLICATE,
     IN_FALLBACK,
@@ -244,8 +244,8 @@ def test_intake_refusals_change_nothing():
 def test_stream_grows_the_queue_for_waiting_samples(as_map):
     """Tracker samples with no gyro data yet pile up: the stream grows a one-row queue as needed,
     whether the compiled intake (bytes) or the general path (maps) takes them."""
-    from radical_rt.filter import Engine
-    from radical_rt.stream import StreamProcessor
+    from radical_rt.engine.filter import Engine
+    from radical_rt.stream.processor import StreamProcessor
     sp = StreamProcessor(Engine(), reorder_slack_s=1e4)  # nothing becomes due
     sp.tracker_q = TrackerQueue(capacity=1)
     sp.begin_stream()

@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from radical_rt import zconfig
-from radical_rt.transport import InMemoryBus, InMemoryTransport, ZenohTransport, key_matches
+from radical_rt.io import zconfig
+from radical_rt.io.transport import InMemoryBus, InMemoryTransport, ZenohTransport, key_matches
 
 
 @pytest.mark.parametrize("expr, key, ok", [

@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radical_rt import ud
 from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK
+from radical_rt.kernels import ud
 
 TOL = 1e-9
 SETTINGS = settings(derandomize=True, deadline=None, max_examples=60)

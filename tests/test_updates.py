@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from radical_rt import ud
-from radical_rt.updates import UPDATE_ACCEPTED, UPDATE_EDITED, gated_update
+from radical_rt.kernels import ud
+from radical_rt.kernels.updates import UPDATE_ACCEPTED, UPDATE_EDITED, gated_update
 
 
 def _run(P, H, z, rd, dx0, gate):
@@ -57,7 +57,7 @@ def test_edit_leaves_state_untouched():
 
 
 def test_spd_quadratic_matches_solve_and_flags_indefinite():
-    from radical_rt.updates import spd_quadratic
+    from radical_rt.kernels.updates import spd_quadratic
     rng = np.random.default_rng(11)
     for m in (1, 2, 3, 5):
         A = rng.normal(size=(m, m))

@@ -3,7 +3,7 @@
 Public API: :func:`synthesize` (scenario → MCAP archive), :func:`load_scenario`,
 :class:`~replayer.synth.maneuver.Profile` (closed-form truth attitude) and
 :class:`ScenarioError`. The physics follows CONTRACT §1.4–1.5 with its own code; it never imports
-the filter (``radical_rt.model``, ``filter``, ``params``). See docs/scenarios.md.
+the filter (``radical_rt.kernels.model``, ``filter``, ``params``). See docs/scenarios.md.
 """
 
 from .api import SynthResult, synthesize

@@ -16,7 +16,7 @@ import argparse
 import json
 import sys
 
-from radical_rt.outpaths import output_file
+from radical_rt.io.outpaths import output_file
 from replayer.archive import ArchiveError
 
 from .api import synthesize

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radical_rt.conventions import SIRU_TT_TICK_S, SIRU_TT_WRAP
+from radical_rt.contract.conventions import SIRU_TT_TICK_S, SIRU_TT_WRAP
 
 from .schema import siru_timing
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from radical_rt.conventions import DEG
+from radical_rt.contract.conventions import DEG
 
 AXES = {"x": 0, "y": 1, "z": 2}
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radical_rt.conventions import SI_PER_PAPER_UNIT
+from radical_rt.contract.conventions import SI_PER_PAPER_UNIT
 
 from . import maneuver
 from .schema import (

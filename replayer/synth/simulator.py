@@ -16,7 +16,7 @@ import zlib
 
 import numpy as np
 
-from radical_rt.conventions import t_to_ns
+from radical_rt.contract.conventions import t_to_ns
 
 from .clock import BusReads, SiruClock, latest_sample, read_counts
 from .siru import SiruModel

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from radical_rt.conventions import ARCSEC, DEG, DEG_PER_HR, PPM
-from radical_rt.geometry import U_NOM, V_NOM, W_NOM
+from radical_rt.contract.conventions import ARCSEC, DEG, DEG_PER_HR, PPM
+from radical_rt.contract.geometry import U_NOM, V_NOM, W_NOM
 
 #: Bias random-walk knot spacing (s).
 KNOT_S = 1.0

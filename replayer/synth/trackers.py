@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from radical_rt.conventions import ARCSEC, DEG
-from radical_rt.geometry import R_ST1_FROM_BODY, R_ST2_FROM_BODY_NOM
+from radical_rt.contract.conventions import ARCSEC, DEG
+from radical_rt.contract.geometry import R_ST1_FROM_BODY, R_ST2_FROM_BODY_NOM
 
 _R_ST1 = Rotation.from_matrix(R_ST1_FROM_BODY)
 _R_ST2_NOM = Rotation.from_matrix(R_ST2_FROM_BODY_NOM)

@@ -1,6 +1,6 @@
 """Dense-covariance reference of the RADICAL engine (same filter, P instead of U, d).
 
-:class:`DenseEngine` subclasses :class:`radical_rt.filter.Engine` and overrides only the
+:class:`DenseEngine` subclasses :class:`radical_rt.engine.filter.Engine` and overrides only the
 engine's covariance primitives (``_cov_reset_attitude``, ``_cov_add_diagonal``, ``_cov_scale``,
 ``_cov_close_window``, ``_cov_converged``), the regressor reliability (from P, an independent
 implementation of its formula), ``_vector_update`` and ``variances``/``contract_params``; models,
@@ -9,7 +9,7 @@ every operation are the engine's own. The
 covariance P (ns, ns) is the single source of truth:
 
 ============================  =================================  ==================================
-engine operation              UD engine (radical_rt.ud/updates)  here
+engine operation              UD engine (radical_rt.kernels.ud/updates)  here
 ============================  =================================  ==================================
 window time update            structured_time_update (MWGS-free  P ← ΦPΦᵀ + Q, Φ = [[Φ_aa, Φ_ap],
                               attitude-first partition)          [0, I]] (exploits the same blocks)
@@ -49,12 +49,12 @@ from typing import Any
 
 import numpy as np
 
-from radical_rt import ud
 from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK, kernel
-from radical_rt.filter import Engine
-from radical_rt.flags import Flag
-from radical_rt.model import contract_from_internal
-from radical_rt.timeupdate import ACC_NOISE_T, NOISE_PERIOD_S
+from radical_rt.contract.flags import Flag
+from radical_rt.engine.filter import Engine
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import contract_from_internal
+from radical_rt.kernels.timeupdate import ACC_NOISE_T, NOISE_PERIOD_S
 
 # ------------------------------------------------------------------------------------- kernels
 
@@ -148,7 +148,7 @@ def dense_innovation_test(P, dx, H, z, rdiag, S, innov, sig, PHt):
 @kernel
 def dense_gated_update(P, dx, H, z, rdiag, gate, edit_enabled, consider, S, innov, sig, PHt, b, k):
     """Gated sequential update of rows H (m, n) with noise variances rdiag (m,) (same returns as
-    :func:`radical_rt.updates.gated_update`: status, NIS, 0 accepted / 1 edited).
+    :func:`radical_rt.kernels.updates.gated_update`: status, NIS, 0 accepted / 1 edited).
 
     Per row: b = P h, α = hᵀb + r, k = b/α with the consider states' entries zeroed (Schmidt
     gain), dx += k (z − h·dx), Joseph form P ← (I − khᵀ)P(I − khᵀ)ᵀ + r kkᵀ, evaluated as
@@ -271,7 +271,7 @@ class DenseEngine(Engine):
         if kappa < 1.0:
             self._scale_regressor_columns(self.Phi_ap, kappa)
         self._dirty(dense_time_update(self.P, 3, self.Phi_aa, self.Phi_ap, self.Q_aa, self._T))
-        # the parameter noise accumulated and added once a second, as radical_rt.timeupdate
+        # the parameter noise accumulated and added once a second, as radical_rt.kernels.timeupdate
         self.q_dt += self.q_params * self.acc_f[0]
         self.acc_f[ACC_NOISE_T] += self.acc_f[0]
         if self.acc_f[ACC_NOISE_T] >= NOISE_PERIOD_S:
@@ -338,10 +338,10 @@ class DenseEngine(Engine):
 
 
 def make_processor(engine_cls=Engine, table=None, clock_mode: str = "reconstruct"):
-    """A stream processor as :func:`radical_rt.batch.make_processor` builds it, with the engine
+    """A stream processor as :func:`radical_rt.apps.batch.make_processor` builds it, with the engine
     class of choice (``Engine`` or :class:`DenseEngine`)."""
-    from radical_rt.clock import ClockConfig, SiruClock
-    from radical_rt.stream import StreamProcessor
+    from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+    from radical_rt.stream.processor import StreamProcessor
 
     engine = engine_cls(table)
     return StreamProcessor(engine, SiruClock(ClockConfig(mode=clock_mode), n_gyro=engine.n_gyro))
@@ -349,7 +349,7 @@ def make_processor(engine_cls=Engine, table=None, clock_mode: str = "reconstruct
 
 def run_archive(sp, path: str | Path):
     """Feed one archive's inputs through ``sp`` (the batch shell's loop, no output archive)."""
-    from radical_rt.batch import INPUTS
+    from radical_rt.apps.batch import INPUTS
     from replayer.archive import ArchiveReader
 
     with ArchiveReader(str(path)) as reader:

@@ -1,12 +1,12 @@
 """Test oracle: the FDI hypothesis bank as it was written in Python before the bank was compiled
-(radical_rt/fdi.py, HypothesisBank, at commit 12a76bb), numpy solve/slogdet per hypothesis per
+(radical_rt/fdi/monitor.py, HypothesisBank, at commit 12a76bb), numpy solve/slogdet per hypothesis per
 tracker sample. Kept verbatim apart from: the imports; the gyro history's former ``take`` as the
 module function :func:`take`; public names for the two steps (``propagate_to``,
 ``update_tracker``, so that a test can trace every tracker sample); and ``final_state``, through
 which the monitor's hand-over now reads the winner's state.
 
 It is not the product: tests/test_fdi_bank.py runs it side by side with the compiled bank
-(radical_rt.fdi_hypotheses.HypothesisBank, kernels in radical_rt.fdi_bank) and compares the
+(radical_rt.fdi.fdi_hypotheses.HypothesisBank, kernels in radical_rt.fdi.fdi_bank) and compares the
 log-likelihoods and NIS of every tracker sample and the decisions; perf/bench_fdi_bank.py times
 both. Known difference by design: an S that is not positive definite gives ll = −inf in the
 kernels (Cholesky); here only an exactly singular S raises LinAlgError (an indefinite S would go on
@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from radical_rt import ud
-from radical_rt.fdi_detect import chi2_isf
-from radical_rt.fdi_hypotheses import CONSISTENCY_P, NIS_CAP
-from radical_rt.model import apply_body_rotation, refresh_axes, tracker_residual
-from radical_rt.propagate import propagate_window
-from radical_rt.rotation import quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.fdi.fdi_detect import chi2_isf
+from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import apply_body_rotation, refresh_axes, tracker_residual
+from radical_rt.kernels.propagate import propagate_window
+from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
 
 
 def take(buf, t_after: float, t_upto: float):

@@ -31,8 +31,8 @@ import msgpack
 import numba
 import numpy as np
 
-from radical_rt.batch import make_processor, make_summary
-from radical_rt.params import ParamTable
+from radical_rt.apps.batch import make_processor, make_summary
+from radical_rt.contract.params import ParamTable
 
 GOLDEN_DIR = Path(__file__).resolve().parent.parent / "golden"
 SCHEMA = "radical.golden/1"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from radical_rt.conventions import ARCSEC, DEG_PER_HR, PPM
+from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR, PPM
 
 
 def large_packet(seq: int = 7, t: float = 1234.5, flags: int = 0) -> dict:

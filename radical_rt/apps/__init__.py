@@ -1,0 +1,1 @@
+"""Applications on the engine: the command line, the node, batch processing, the demo, maneuver design."""

@@ -1,0 +1,1 @@
+"""The SIRU clock reconstruction (time line from counters and bus tags)."""

@@ -1,0 +1,1 @@
+"""The estimation engine: the filter, its compiled release and its state layout."""

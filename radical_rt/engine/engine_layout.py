@@ -1,0 +1,96 @@
+"""Layout of the engine's packed state, declared once: which arrays the compiled release reads
+and writes, in which buffer, with which rank.
+
+:class:`radical_rt.engine.engine_state.EngineState` keeps these arrays in three flat buffers (float64
+``fb``, int64 ``ib``, bool ``bb``) plus a layout array ``lay`` (k, 4) of offset, rows, columns and
+buffer per array, so that a compiled call takes four arguments instead of 46. From :data:`SLOTS`
+follow: the packing order and the dtype and rank checks (``EngineState._pack``), the position of
+each array in the tuple ``E`` of :mod:`radical_rt.engine.fastpath` (:data:`E_INDEX`, ``E_*`` constants),
+and the compiled :func:`unpack` itself, whose source is generated from the table (one ``_v1`` or
+``_v2`` view per slot), so that no position is written by hand.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from radical_rt._jit import inline_kernel
+
+FLOAT, INT, BOOL = 0, 1, 2  # buffer codes: fb, ib, bb
+BUFFER_DTYPES = ("float64", "int64", "bool")
+
+
+class Slot(NamedTuple):
+    """One packed array: ``owner`` ("" the engine, "ws" its UD workspace, "geo" its copy of the
+    nominal triads), attribute ``name``, ``buffer`` (FLOAT, INT, BOOL) and rank ``ndim`` (1, 2)."""
+
+    owner: str
+    name: str
+    buffer: int
+    ndim: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.owner}.{self.name}" if self.owner else self.name
+
+
+def _slots(spec: str) -> tuple[Slot, ...]:
+    out = []
+    for item in spec.split():
+        path, code = item.split(":")
+        owner, _, name = path.rpartition(".")
+        out.append(Slot(owner, name, "fib".index(code[0]), int(code[1])))
+    return tuple(out)
+
+
+#: every packed array as owner.name:<buffer f|i|b><rank>, in packing order (E's order)
+SLOTS = _slots("""
+    excluded:b1 xp:f1 q:f1 A:f2 geo.W:f2 geo.U:f2 geo.V:f2 Minv:f2 Gp:f2 N:f2 Phi_aa:f2
+    Phi_ap:f2 Q_aa:f2 par_y:f2 par_t:f2 acc_i:i1 acc_f:f1 th_acc:f1 omega:f1 U:f2 d:f1 dx:f1
+    q_params:f1 param_idx:i1 q_dt:f1 ws.struct:f2 ws.a:f1 ws.var:f1 conv_var:f1 kappa_last:f1
+    Hbuf:f2 r3:f1 H_att:f2 H_phi:f2 Fbuf:f2 Sbuf:f2 innov:f1 sig:f1 ws.f:f1 ws.v:f1 ws.k:f1
+    st_sigma:f1 gyro_mask:b1 Hwbuf:f2 zwbuf:f1 Lbuf:f2
+""")
+
+#: "owner.name" (or "name") → position in E
+E_INDEX = {s.key: i for i, s in enumerate(SLOTS)}
+
+
+def slot_problems(slot: Slot, array) -> list[str]:
+    """Why ``array`` cannot be packed into ``slot`` (empty when it can): dtype and rank."""
+    want = BUFFER_DTYPES[slot.buffer]
+    probs = []
+    if str(array.dtype) != want:
+        probs.append(f"{slot.key}: dtype {array.dtype}, layout says {want}")
+    if array.ndim != slot.ndim:
+        probs.append(f"{slot.key}: rank {array.ndim}, layout says {slot.ndim}")
+    return probs
+
+
+@inline_kernel
+def _v1(buf, lay, i):
+    return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
+
+
+@inline_kernel
+def _v2(buf, lay, i):
+    o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
+    return buf[o:o + r * c].reshape((r, c))
+
+
+def _unpack_source() -> str:
+    views = ", ".join(f"_v{s.ndim}({('fb', 'ib', 'bb')[s.buffer]}, lay, {i})"
+                      for i, s in enumerate(SLOTS))
+    return f"def unpack(fb, ib, bb, lay):\n    return ({views},)\n"
+
+
+def _generated_unpack():
+    namespace = {"_v1": _v1, "_v2": _v2}
+    exec(compile(_unpack_source(), __file__, "exec"), namespace)  # noqa: S102 (source: SLOTS)
+    fn = namespace["unpack"]
+    fn.__doc__ = ("The array tuple E (one view per entry of SLOTS) from the engine's packed "
+                  "buffers fb (float64), ib (int64), bb (bool) and layout lay (k, 4).")
+    return fn
+
+
+unpack = inline_kernel(_generated_unpack())

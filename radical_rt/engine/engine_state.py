@@ -1,0 +1,253 @@
+"""Engine state arrays, health bookkeeping, snapshots and checkpoints (no filter math here).
+
+:class:`EngineState` owns every array the engine works on (allocated once), the counters, flags and
+mode, and turns them into output snapshots (SI) and msgpack-able checkpoints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict, deque
+from typing import Any
+
+import numpy as np
+
+from radical_rt.contract.flags import Flag
+from radical_rt.contract.geometry import Geometry
+from radical_rt.contract.state import PARAM_GROUPS, StateLayout
+from radical_rt.engine.engine_layout import SLOTS, slot_problems
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import contract_from_internal, contract_sigma_ud
+
+# flag bits as plain ints (IntFlag arithmetic is slow on the 10 Hz path)
+_STALE_BITS = ((1, int(Flag.ST1_STALE)), (2, int(Flag.ST2_STALE)))
+_NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+
+
+class EngineState:
+    """Arrays and bookkeeping of the engine for a given state layout and geometry."""
+
+    def __init__(self, layout: StateLayout, geometry: Geometry) -> None:
+        self.layout, self.geo = layout, geometry
+        #: (group, slice of xp) per parameter group, for the per-group outputs
+        self._group_slices = [(g, param_slice(layout, g)) for g in PARAM_GROUPS]
+        n = self.n_gyro = geometry.n_gyro
+        ns = self.ns = layout.n_states
+        npar, nr = ns - 3, n - 3
+        self.q = np.array([0.0, 0.0, 0.0, 1.0])  # q_body_from_inertial
+        self.xp = np.zeros(npar)  # parameters, state order (SI)
+        self.U, self.d, self.dx = np.eye(ns), np.ones(ns), np.zeros(ns)
+        self.h, self.r3 = np.zeros(ns), np.zeros(3)
+        self.H_att, self.H_phi = np.zeros((3, 3)), np.zeros((3, 3))
+        self.A = np.zeros((3, n))  # estimated scaled sense axes (internal parametrization)
+        self.Minv, self.Gp, self.N = np.eye(3), np.zeros((3, n)), geometry.N.copy()
+        self.Phi_aa, self.Phi_ap, self.Q_aa = np.eye(3), np.zeros((3, npar)), np.zeros((3, 3))
+        self.z_par, self.H_par = np.zeros(nr), np.zeros((nr, npar))  # parity measurement buffers
+        self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))  # parity-sum statistics
+        self.theta_par, self.Phi_par = np.zeros(3), np.zeros((3, 5 * n))
+        self.parity_queue: deque = deque()  # closed parity sums waiting for their lag
+        # acc_f: window length, parity-sum noise and length, time since the parameter noise was
+        # last added (timeupdate.ACC_NOISE_T) [s]
+        self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(4)
+        self.th_acc = np.zeros(3)  # Σθ̂ over the time-update window
+        self.q_dt = np.zeros(npar)  # parameter process noise accumulated, not yet added [unit²]
+        self.kappa_last = np.ones(2)  # last regressor reliability (time update, parity)
+        self.omega = np.zeros(3)
+        m_max = max(3, nr)  # measurement rows per update (tracker 3, parity n−3)
+        self.Hbuf, self.Fbuf = np.zeros((m_max, ns)), np.zeros((m_max, ns))
+        self.Sbuf, self.innov, self.sig = np.zeros((m_max, m_max)), np.zeros(m_max), np.zeros(m_max)
+        self.Hwbuf, self.zwbuf, self.Lbuf = np.zeros((m_max, ns)), np.zeros(m_max), np.zeros((m_max, m_max))
+        self.ws = ud.UDWorkspace(ns)
+        self.param_idx = np.arange(3, ns, dtype=np.int64)
+        self.gyro_mask = np.zeros(ns, dtype=np.bool_)  # the gyro calibration states (b … dv)
+        self.gyro_mask[layout.gyro_params] = True
+        self.scale_mask = self.gyro_mask.copy()  # λ, μ, du, dv (the gyro calibration but b)
+        self.scale_mask[layout["b"]] = False
+        self.excluded = np.zeros(n, dtype=np.bool_)
+        self.flags = int(Flag.NOT_CONVERGED)
+        self.mode = "init"
+        self.t = -math.inf
+        self.att_valid = False
+        self.masked = False
+        self.counters: dict[str, int] = defaultdict(int)
+        self.nis_sum: dict[str, float] = defaultdict(float)
+        self.diag_last: dict[str, tuple] = {}
+        self.last_valid_st: dict[int, float] = {}
+        self.last_numeric = ""
+        self.conv_var = np.full(ns - 3, np.inf)  # convergence thresholds², set from the table
+        self.q_params = np.zeros(npar)  # parameter process noise [unit²/s], set from the table
+        self.st_sigma = np.zeros(3)  # tracker noise 1σ at st_ref_stars [rad], set from the table
+        self.locked_since = math.inf  # start of the current locked run of the time line [s]
+
+    # ---------------------------------------------------------------- packed storage
+    # the arrays the compiled release reads or writes: radical_rt.engine.engine_layout.SLOTS
+
+    def _pack(self) -> None:
+        """Move the arrays of :data:`radical_rt.engine.engine_layout.SLOTS` into three flat buffers
+        (float64, int64, bool; dtype and rank checked against the table) and make the attributes
+        views of them, so a compiled call receives the whole state as a few
+        arrays (``_fb``, ``_ib``, ``_bb`` and the layout ``_lay``: offset, rows, columns, buffer
+        per array; radical_rt.engine.engine_layout.unpack). The geometry's nominal triads are copied (the
+        Geometry object keeps its own). Every array keeps its shape and is updated in place."""
+        arrays = [getattr(self if s.owner == "" else getattr(self, s.owner), s.name)
+                  for s in SLOTS]
+        probs = [p for s, a in zip(SLOTS, arrays, strict=True) for p in slot_problems(s, a)]
+        if probs:  # a programming error (an array created with another dtype or rank)
+            raise TypeError("engine state does not fit radical_rt.engine.engine_layout: "
+                            + "; ".join(probs))
+        sizes = [0, 0, 0]
+        lay = np.zeros((len(arrays), 4), np.int64)
+        for i, (s, a) in enumerate(zip(SLOTS, arrays, strict=True)):
+            r, c = (a.shape[0], a.shape[1]) if a.ndim == 2 else (a.shape[0], 0)
+            lay[i] = sizes[s.buffer], r, c, s.buffer
+            sizes[s.buffer] += a.size
+        bufs = (np.zeros(sizes[0]), np.zeros(sizes[1], np.int64), np.zeros(sizes[2], np.bool_))
+        self._fb, self._ib, self._bb = bufs
+        self._lay = lay
+        for i, (s, a) in enumerate(zip(SLOTS, arrays, strict=True)):
+            o = int(lay[i, 0])
+            view = bufs[s.buffer][o:o + a.size].reshape(a.shape)
+            view[...] = a
+            if s.owner == "geo":  # keep the Geometry untouched: the engine's own copies
+                setattr(self, "_geo_" + s.name, view)
+            else:
+                setattr(self if s.owner == "" else getattr(self, s.owner), s.name, view)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Copies (copy.deepcopy, pickle) copy each view on its own: put the copied arrays back
+        into fresh packed buffers, and forget cached views of them."""
+        self.__dict__.update(state)
+        if "_lay" in state:
+            self._pack()
+        if "_views" in state:
+            self._views: dict[int, tuple[np.ndarray, ...]] = {}
+
+    # ---------------------------------------------------------------- outputs
+    def variances(self) -> np.ndarray:
+        """Diagonal of P (ns,) from the UD factors (O(n²), P not formed)."""
+        ud.variances(self.U, self.d, self.ws.var)
+        return self.ws.var.copy()
+
+    def contract_params(self) -> tuple[np.ndarray, np.ndarray]:
+        """Parameter estimate (npar,) and covariance (npar, npar) in the CONTRACT §1.5 parameters.
+
+        The engine estimates internal parameters (linear scaled-axis form, :mod:`radical_rt.kernels.model`);
+        this converts exactly, with the covariance mapped by the conversion's Jacobian.
+        """
+        xc, J = contract_from_internal(self.xp, self.n_gyro)
+        P = np.empty((self.ns, self.ns))
+        ud.ud_to_cov(self.U, self.d, P)
+        Pp = P[3:, 3:]
+        return xc, J @ Pp @ J.T
+
+    def estimates(self) -> dict[str, list[float]]:
+        """Parameter estimates per group (CONTRACT §1.5 parameters), SI."""
+        xc, _ = contract_from_internal(self.xp, self.n_gyro)
+        return self._by_group(xc)
+
+    def _by_group(self, values: np.ndarray) -> dict[str, list[float]]:
+        """Split a parameter vector (npar,) into {group: list} (PARAM_GROUPS order)."""
+        v = values.tolist()
+        return {g: v[sl] for g, sl in self._group_slices}
+
+    def sigmas(self, var: np.ndarray | None = None) -> dict[str, list[float]]:
+        """Parameter 1σ per group (CONTRACT §1.5 parameters), SI. ``var`` is ignored (kept for
+        compatibility): the σ come from the full parameter covariance mapped to the contract's
+        parameters."""
+        return self._by_group(self.contract_sigma())
+
+    def contract_sigma(self) -> np.ndarray:
+        """1σ (npar,) of the contract's parameters: sqrt(diag(J P_pp Jᵀ)) straight from the UD
+        factors, Σ_l d_l (J U_pp)²_il (P_pp = U_pp D_p U_ppᵀ because U is unit upper triangular;
+        neither P nor J P Jᵀ is formed; :func:`radical_rt.kernels.model.contract_sigma_ud`). The dense
+        reference overrides it."""
+        npar = self.xp.shape[0]
+        if self._sig_work is None or self._sig_work.shape[0] != npar:
+            self._sig_work = np.empty((npar, npar))
+        sig = np.empty(npar)
+        contract_sigma_ud(self.xp, self.n_gyro, self.U, self.d, self._sig_work, sig)
+        return sig
+
+    _sig_work: np.ndarray | None = None  # J of contract_sigma_ud
+
+    def update_mode(self, t: float) -> None:
+        """Stale-tracker flags, convergence test on the UD variances, and the mode."""
+        f, stale_s, last = self.flags, self.si.st_stale_s, self.last_valid_st  # type: ignore[attr-defined]
+        for j, bit in _STALE_BITS:
+            f = (f | bit) if t - last.get(j, -math.inf) > stale_s else (f & ~bit)
+        if not self.att_valid:
+            self.flags, self.mode = f, "init"
+            return
+        conv = self._cov_converged()
+        f = (f & ~_NOT_CONVERGED) if conv else (f | _NOT_CONVERGED)
+        self.flags = f
+        if f & _NUMERIC or self.excluded.any():
+            self.mode = "degraded"
+        else:
+            self.mode = "converged" if conv else "converging"
+
+    def _cov_converged(self) -> bool:
+        """Every parameter variance within its convergence threshold (UD variances, P not formed;
+        the dense reference overrides it)."""
+        return bool(ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3))
+
+    def att_sigma(self) -> list[float]:
+        """Attitude 1σ, body axes [rad] (from the UD variances)."""
+        return np.sqrt(self.variances()[:3]).tolist()
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything a telemetry packet may contain (SI, plain Python types)."""
+        return {
+            "t": self.t, "q_body_from_inertial": self.q.tolist(), "flags": int(self.flags),
+            "mode": self.mode, "omega_body": self.omega.tolist(), "est": self.estimates(),
+            "sigma": self.sigmas(), "att_sigma": self.att_sigma(),
+            "residuals": self.residual_stats(), "counters": dict(self.counters),
+            "excluded": [int(i) for i in np.nonzero(self.excluded)[0]],
+        }
+
+    def residual_stats(self) -> dict[str, Any]:
+        """Last innovation, its 1σ and NIS per measurement kind, and mean NIS so far."""
+        out: dict[str, Any] = {}
+        for kind, (innov, sig, nis) in self.diag_last.items():
+            used = self.counters.get(f"{kind}_used", 0)
+            out[kind] = {"innov": np.atleast_1d(innov).tolist(), "sigma": np.atleast_1d(sig).tolist(),
+                         "nis": float(nis),
+                         "nis_mean": self.nis_sum.get(kind, 0.0) / used if used else None}
+        return out
+
+    # ---------------------------------------------------------------- checkpoints
+    _ARRAYS = ("q", "xp", "U", "d", "N", "omega", "excluded")
+
+    def get_state(self) -> dict[str, Any]:
+        """msgpack-able checkpoint of the estimates, UD factors and bookkeeping."""
+        arrays = {k: {"dtype": getattr(self, k).dtype.str, "shape": list(getattr(self, k).shape),
+                      "data": getattr(self, k).tobytes()} for k in self._ARRAYS}
+        return {"arrays": arrays, "flags": int(self.flags), "mode": self.mode, "t": self.t,
+                "att_valid": self.att_valid, "counters": dict(self.counters),
+                "nis_sum": dict(self.nis_sum),
+                "last_valid_st": {str(k): v for k, v in self.last_valid_st.items()}}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a checkpoint made by :meth:`get_state` (same layout and geometry)."""
+        for k in self._ARRAYS:
+            a = state["arrays"][k]
+            arr = np.frombuffer(a["data"], dtype=np.dtype(a["dtype"])).reshape(a["shape"])
+            if arr.shape != getattr(self, k).shape:
+                raise ValueError(f"checkpoint array {k} has shape {arr.shape}, "
+                                 f"expected {getattr(self, k).shape}")
+            getattr(self, k)[...] = arr
+        self.flags, self.mode, self.t = int(state["flags"]), state["mode"], float(state["t"])
+        self.att_valid = bool(state["att_valid"])
+        self.counters = defaultdict(int, state["counters"])
+        self.nis_sum = defaultdict(float, state["nis_sum"])
+        self.last_valid_st = {int(k): v for k, v in state["last_valid_st"].items()}
+        self.state_restored()
+
+    def state_restored(self) -> None:
+        """Rebuild what is derived from the restored arrays (the engine overrides this)."""
+
+
+def param_slice(layout: StateLayout, group: str) -> slice:
+    """Slice of a group inside the parameter vector xp (state index − 3)."""
+    s = layout[group]
+    return slice(s.start - 3, s.stop - 3)

@@ -1,0 +1,359 @@
+"""The engine's compiled fast path: a run of gyro samples, or one tracker sample, in one Numba call.
+
+:class:`radical_rt.engine.filter.Engine` processes events with small kernels glued by Python (the
+reference path, which the dense-covariance engine of tests/oracles/dense_engine.py also runs). Most of the
+glue does the same thing at every 10 Hz window close: close the window, fold the correction,
+re-run the convergence test, find that nothing is due. The kernels here run that common case in
+compiled code, calling the *same* kernels in the same order with the same arguments (so the
+results are bit-identical; tests/test_fastpath.py checks it), and return to Python as soon as the
+reference path would do something only Python does:
+
+* ``R_SLOW``: a gyro gap at the next sample (warm start, counters) — the reference gyro path
+  takes the rest of the run;
+* ``R_CLOSE_TAIL``: a window closed with a kernel error, or a parity sum is complete, or a queued
+  parity sum has waited its lag (parity queue, FDI parity hook, parity update);
+* ``R_TRACKER_SLOW``: the whitening of the tracker noise with the clock's timing term failed
+  (Python redoes the update and handles the error);
+* ``R_VEC_STATUS`` / ``R_NUMERIC_FOLD``: a kernel error in the tracker update or the fold;
+* ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
+  trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
+  or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
+  ending), or, with io[IO_WAKE_EVERY] set, after every tracker sample (an FDI hypothesis bank is running
+  that the kernel does not run itself), or after a tracker sample at which the bank the kernel
+  runs (argument ``bk``) has its decision due.
+  Python then runs :meth:`Engine.on_window` exactly as the reference path does.
+
+Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
+
+``E``: tuple of the engine's arrays, in the order unpacked below (all updated in place); the
+engine passes them packed in three flat buffers (``EngineState._pack``, and
+:func:`radical_rt.engine.engine_layout.unpack`, generated from the layout table), which
+costs one argument each instead of one per array when Python calls the kernel.
+``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
+kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
+and status codes (int64), declared in :mod:`radical_rt.engine.fastpath_layout` (``CFG_*``, ``IO_*``,
+``CNT_*``; docs/engine.md lists them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from radical_rt._jit import inline_kernel, kernel
+from radical_rt.contract.flags import Flag
+from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.fastpath_layout import (
+    CFG_ARW_VAR,
+    CFG_EDIT,
+    CFG_GATE_NIS,
+    CFG_GYRO_GAP,
+    CFG_LAT_COL,
+    CFG_LAT_P,
+    CFG_N_GYRO,
+    CFG_PARITY_LAG,
+    CFG_PARITY_WINDOW,
+    CFG_PHI_COL,
+    CFG_PHI_P,
+    CFG_PROP_WINDOW,
+    CFG_QUANT_VAR,
+    CFG_REGRESSOR_K,
+    CFG_ST_MIN_STARS,
+    CFG_ST_REF_STARS,
+    CFG_ST_STALE,
+    CFG_TIMING_CONSIDER,
+    CNT_CONSIDER,
+    CNT_EDITED,
+    CNT_FLAGS,
+    CNT_INVALID_ST,
+    CNT_INVALID_ST1,
+    CNT_INVALID_ST2,
+    CNT_MASKED,
+    CNT_STATUS,
+    CNT_UNDETERMINED,
+    CNT_UPDATED,
+    CNT_USED,
+    IO_LAST_ST,
+    IO_LAST_ST1,
+    IO_LAST_ST2,
+    IO_LOCKED_SINCE,
+    IO_MODE,
+    IO_NIS,
+    IO_PARITY_OLDEST,
+    IO_SIG_T,
+    IO_T,
+    IO_WAKE_E,
+    IO_WAKE_EVERY,
+    IO_WAKE_T,
+)
+from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.fdi.fdi_bank import BI_ON, append_rows, bank_sample
+from radical_rt.kernels.model import fold_correction, tracker_rows
+from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
+from radical_rt.kernels.timeupdate import close_time_window
+from radical_rt.kernels.ud import decorrelate, variances_within
+from radical_rt.kernels.updates import (
+    gated_update,
+    gated_update_consider,
+    timing_noise,
+    unwhiten_diagnostics,
+)
+
+(R_DONE, R_SLOW, R_CLOSE_TAIL, R_TRACKER_SLOW, R_VEC_STATUS, R_NUMERIC_FOLD,
+ R_ON_WINDOW) = range(7)
+
+_ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
+_ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
+_NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
+_TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
+
+# positions in E of its arrays, by key (radical_rt.engine.engine_layout.SLOTS declares the order once)
+(_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _PAR_Y, _PAR_T,
+ _ACC_I, _ACC_F, _TH_ACC, _OMEGA, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W,
+ _VAR_W, _CONV_VAR, _KAPPA_LAST, _HBUF, _R3, _H_ATT, _H_PHI, _FBUF, _SBUF, _INNOV, _SIG, _F_W,
+ _V_W, _K_W, _ST_SIGMA, _GYRO_MASK, _HWBUF, _ZWBUF, _LBUF) = (E_INDEX[k] for k in (
+    "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
+    "Q_aa", "par_y", "par_t", "acc_i", "acc_f", "th_acc", "omega", "U", "d", "dx", "q_params",
+    "param_idx", "q_dt", "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "Hbuf", "r3",
+    "H_att", "H_phi", "Fbuf", "Sbuf", "innov", "sig", "ws.f", "ws.v", "ws.k", "st_sigma",
+    "gyro_mask", "Hwbuf", "zwbuf", "Lbuf"))
+
+
+@inline_kernel
+def _close(E, cfg, io, cnt):
+    """Close the time-update window (as Engine._close_window). Returns True when Python must take
+    the rest of the close (kernel error, parity sum complete or due); else runs the lock latch."""
+    Minv, Phi_aa, Phi_ap, Q_aa = E[_MINV], E[_PHI_AA], E[_PHI_AP], E[_Q_AA]
+    acc_i, acc_f, th_acc, kappa_last = E[_ACC_I], E[_ACC_F], E[_TH_ACC], E[_KAPPA_LAST]
+    U, d, q_params, param_idx, q_dt = E[_U], E[_D], E[_Q_PARAMS], E[_PARAM_IDX], E[_Q_DT]
+    struct_w, a_w = E[_STRUCT_W], E[_A_W]
+    noise_var = cfg[CFG_ARW_VAR] * acc_f[0] + cfg[CFG_QUANT_VAR]
+    status, kappa = close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv,
+                                      int(cfg[CFG_N_GYRO]), noise_var, cfg[CFG_REGRESSOR_K],
+                                      q_params, param_idx, q_dt,
+                                      struct_w, a_w)
+    kappa_last[0] = kappa
+    cnt[CNT_STATUS] = status
+    t = io[IO_T]
+    if (status != 0 or acc_i[1] >= cfg[CFG_PARITY_WINDOW]
+            or io[IO_PARITY_OLDEST] <= t - cfg[CFG_PARITY_LAG]):
+        return True
+    if io[IO_SIG_T] > cfg[CFG_TIMING_CONSIDER]:  # Engine._update_lock_latch
+        io[IO_LOCKED_SINCE] = math.inf
+    elif io[IO_LOCKED_SINCE] == math.inf:
+        io[IO_LOCKED_SINCE] = t
+    return False
+
+
+@inline_kernel
+def _window_due(E, cfg, io, cnt, t_event):
+    """Whether Engine.on_window(t_event) would act (see the module docstring)."""
+    excluded, U, d, var_w, conv_var = E[_EXCLUDED], E[_U], E[_D], E[_VAR_W], E[_CONV_VAR]
+    f = cnt[CNT_FLAGS]
+    f = (f | _ST1_STALE) if t_event - io[IO_LAST_ST1] > cfg[CFG_ST_STALE] else (f & ~_ST1_STALE)
+    f = (f | _ST2_STALE) if t_event - io[IO_LAST_ST2] > cfg[CFG_ST_STALE] else (f & ~_ST2_STALE)
+    if variances_within(U, d, var_w, conv_var, 3):
+        f &= ~_NOT_CONVERGED
+    else:
+        f |= _NOT_CONVERGED
+    if f & _NUMERIC:
+        mode = MODE_DEGRADED
+    else:
+        mode = MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED
+        for i in range(excluded.shape[0]):
+            if excluded[i]:
+                mode = MODE_DEGRADED
+    return (f != cnt[CNT_FLAGS] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
+            or io[IO_T] >= io[IO_WAKE_E])
+
+
+@inline_kernel
+def _fold(E):
+    """Engine._apply_correction: fold dx into q and xp, rebuild the geometry (> 0: singular)."""
+    return fold_correction(E[_DX], E[_Q], E[_XP], E[_W], E[_UAX], E[_VAX], E[_A], E[_MINV],
+                           E[_GP], E[_N])
+
+
+@inline_kernel
+def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt):
+    """Propagate samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status
+    (m,) int bits, bridged (m,) bool, var_extra (m,) [rad²]), closing windows on the way, as
+    Engine.gyro with an attitude does. Returns (reason R_*, index of the next sample)."""
+    excluded, xp, q, A, W, U_ax, V_ax = E[_EXCLUDED], E[_XP], E[_Q], E[_A], E[_W], E[_UAX], E[_VAX]
+    Minv, Gp, N, Phi_aa, Phi_ap = E[_MINV], E[_GP], E[_N], E[_PHI_AA], E[_PHI_AP]
+    Q_aa, par_y, par_t, acc_i, acc_f = E[_Q_AA], E[_PAR_Y], E[_PAR_T], E[_ACC_I], E[_ACC_F]
+    th_acc, omega = E[_TH_ACC], E[_OMEGA]
+    window, arw, gap_s = int(cfg[CFG_PROP_WINDOW]), cfg[CFG_ARW_VAR], cfg[CFG_GYRO_GAP]
+    while k < upto:
+        if dt[k] > gap_s:
+            return R_SLOW, k
+        stop = k + 1
+        while stop < upto and not dt[stop] > gap_s:
+            stop += 1
+        k_next, pflags = propagate_window(
+            dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k, excluded,
+            xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+            th_acc, window, arw, omega)
+        cnt[CNT_USED] += k_next - k
+        if pflags & PROP_UNDETERMINED:
+            cnt[CNT_UNDETERMINED] += 1
+        cnt[CNT_MASKED] = 1 if pflags & PROP_MASKED else 0
+        io[IO_T] = t[k_next - 1]
+        k = k_next
+        if acc_i[0] >= window:
+            if _close(E, cfg, io, cnt):
+                return R_CLOSE_TAIL, k
+            if _fold(E) > 0:
+                return R_NUMERIC_FOLD, k
+            if _window_due(E, cfg, io, cnt, io[IO_T]):
+                return R_ON_WINDOW, k
+    return R_DONE, k
+
+
+@inline_kernel
+def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt):
+    """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
+    q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
+    the residual and rows, the gated update, the fold and the window test, as Engine.tracker does
+    once the attitude is initialized. An invalid sample (not valid, or too few stars) is only
+    counted, cnt[CNT_INVALID_ST + j] += 1, with cnt[CNT_UPDATED] = −1 (R_DONE); otherwise
+    io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
+    xp, q, acc_i, omega, U, d, dx = E[_XP], E[_Q], E[_ACC_I], E[_OMEGA], E[_U], E[_D], E[_DX]
+    a_w, Hbuf, r3, H_att, H_phi = E[_A_W], E[_HBUF], E[_R3], E[_H_ATT], E[_H_PHI]
+    Fbuf, Sbuf, innov, sig = E[_FBUF], E[_SBUF], E[_INNOV], E[_SIG]
+    f_w, v_w, k_w, st_sigma, gyro_mask = E[_F_W], E[_V_W], E[_K_W], E[_ST_SIGMA], E[_GYRO_MASK]
+    Hwbuf, zwbuf, Lbuf = E[_HWBUF], E[_ZWBUF], E[_LBUF]
+    cnt[CNT_UPDATED], cnt[CNT_CONSIDER] = 0, 0
+    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:  # Engine.tracker: counted, nothing else
+        cnt[CNT_INVALID_ST + j] += 1
+        cnt[CNT_UPDATED] = -1
+        return R_DONE
+    io[IO_LAST_ST + j] = t_epoch
+    if acc_i[0] > 0 and _close(E, cfg, io, cnt):
+        return R_CLOSE_TAIL
+    phi_col, lat_col = int(cfg[CFG_PHI_COL]), int(cfg[CFG_LAT_COL])
+    phi_p, lat_p = int(cfg[CFG_PHI_P]), int(cfg[CFG_LAT_P])
+    H = Hbuf[:3]
+    rate2 = tracker_rows(q_meas, q, omega, t_epoch - xp[lat_p] - io[IO_T], R_nom,
+                         xp[phi_p:phi_p + 3], use_phi, phi_col, lat_col, r3, H_att, H_phi, H)
+    scale = math.sqrt(cfg[CFG_ST_REF_STARS] / max(n_stars, 1))
+    rdiag = np.empty(3)
+    for r in range(3):
+        s = st_sigma[r] * scale
+        rdiag[r] = s * s
+    sig_t = io[IO_SIG_T]
+    gate, edit = cfg[CFG_GATE_NIS], cfg[CFG_EDIT] != 0.0
+    if sig_t * sig_t * rate2 / rdiag.min() > _TIMING_RATIO:  # Engine._tracker_update's timing term
+        Rm = np.empty((3, 3))
+        timing_noise(R_nom, omega, rdiag, sig_t, Rm)
+        Hw, zw, L = Hwbuf[:3], zwbuf[:3], Lbuf[:3, :3]
+        if decorrelate(H, r3, Rm, Hw, zw, L) != 0:
+            return R_TRACKER_SLOW  # nothing changed yet: Python takes the whole update
+        ones = np.ones(3)
+        if sig_t > cfg[CFG_TIMING_CONSIDER]:  # Schmidt consider on the gyro calibration
+            cnt[CNT_CONSIDER] = 1
+            status, nis, edited = gated_update_consider(
+                U, d, dx, Hw, zw, ones, gate, edit, gyro_mask, Fbuf[:3], Sbuf[:3, :3], innov[:3],
+                sig[:3], f_w, v_w, k_w, a_w)
+        else:
+            status, nis, edited = gated_update(U, d, dx, Hw, zw, ones, gate, edit, Fbuf[:3],
+                                               Sbuf[:3, :3], innov[:3], sig[:3], f_w, v_w, k_w)
+        iw = innov[:3].copy()
+        unwhiten_diagnostics(L, iw, Sbuf[:3, :3], innov[:3], sig[:3])
+    else:
+        status, nis, edited = gated_update(U, d, dx, H, r3, rdiag, gate, edit, Fbuf[:3],
+                                           Sbuf[:3, :3], innov[:3], sig[:3], f_w, v_w, k_w)
+    cnt[CNT_STATUS], cnt[CNT_EDITED], cnt[CNT_UPDATED] = status, 1 if edited else 0, 1
+    io[IO_NIS] = nis
+    if status != 0:
+        return R_VEC_STATUS
+    bit = _ST1_EDITED if j == 1 else _ST2_EDITED
+    cnt[CNT_FLAGS] = (cnt[CNT_FLAGS] & ~bit) | (bit if edited else 0)
+    if _fold(E) > 0:
+        return R_NUMERIC_FOLD
+    if io[IO_WAKE_EVERY] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
+        return R_ON_WINDOW
+    return R_DONE
+
+
+@kernel
+def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
+                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
+                 clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_parity, s_last1,
+                 s_last2, s_mode, s_flags):
+    """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
+    (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
+    epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
+    to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). The update results of every tracker event
+    go to evo_f (E, 7) (NIS, innovation (3,), σ (3,)) and evo_i (E, 4) (status, edited, updated,
+    consider; updated −1: an invalid sample, only counted in cnt[CNT_INVALID_ST + j])
+    for Python's bookkeeping. Returns (reason, next sample, event, stage): R_DONE with event ==
+    n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
+    before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
+    samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
+    (radical_rt.fdi.fdi_history.SampleBuffer, room already made; its owner advances its end), as the
+    reference path's on_gyro hook does before the engine runs. pred (9,): with pred[0] = 1 and
+    pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
+    sample-triggered telemetry from its final state (:func:`radical_rt.engine.gyro_queue.predict_pending`
+    through the queue's samples z..q_end−1 and the clock's held-back read, clock state
+    clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω.
+    bk: the running FDI hypothesis bank's arrays (radical_rt.fdi.fdi_hypotheses.HypothesisBank.
+    kernel_args; idle_kernel_args with bk[34][BI_ON] = 0 when none runs here): each tracker event
+    the kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
+    the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
+    takes the decision at the same sample as the reference path.
+    s_t .. s_flags: the engine's scalar state, loaded into io[IO_T..IO_MODE]
+    and cnt[CNT_FLAGS] (cnt[CNT_USED..CNT_MASKED] ← 0, 0,
+    −1, the invalid-sample counts ← 0) first (module docstring; FastRelease._fast_begin)."""
+    io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
+    io[IO_WAKE_T], io[IO_WAKE_E], io[IO_PARITY_OLDEST] = wake_t, wake_e, s_parity
+    io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
+    cnt[CNT_FLAGS], cnt[CNT_USED], cnt[CNT_UNDETERMINED], cnt[CNT_MASKED] = s_flags, 0, 0, -1
+    cnt[CNT_INVALID_ST1], cnt[CNT_INVALID_ST2] = 0, 0
+    if g_end >= 0:
+        append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
+    E = unpack(fb, ib, bb, lay)
+    innov, sig = E[_INNOV], E[_SIG]
+    bk_on = bk[34]  # the bank's integer controls bi (radical_rt.fdi.fdi_bank.BI_*; bank_sample)
+    while e < n_ev:
+        epoch = ev_f[e, 0]
+        up = k
+        while up < z and t[up] <= epoch:
+            up += 1
+        reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, up, E, cfg, io, cnt)
+        if reason != R_DONE:
+            return reason, k, e, 0
+        j = ev_i[e, 0]
+        reason = _tracker_step(j, epoch, ev_f[e, 1:5], ev_i[e, 1], ev_i[e, 2] != 0,
+                               R1 if j == 1 else R2, j == 2, E, cfg, io, cnt)
+        evo_i[e, 0], evo_i[e, 1] = cnt[CNT_STATUS], cnt[CNT_EDITED]
+        evo_i[e, 2], evo_i[e, 3] = cnt[CNT_UPDATED], cnt[CNT_CONSIDER]
+        evo_f[e, 0] = io[IO_NIS]
+        for r in range(3):
+            evo_f[e, 1 + r] = innov[r]
+            evo_f[e, 4 + r] = sig[r]
+        # the bank takes every sample whose update the kernel completed, also one after which
+        # the window hook has work (R_ON_WINDOW: Python then finds the bank caught up)
+        if (reason == R_DONE or reason == R_ON_WINDOW) and cnt[CNT_UPDATED] >= 0 and bk_on[
+                BI_ON] != 0 and bank_sample(
+                bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
+                io[IO_SIG_T], E[_W],
+                E[_UAX], E[_VAX]):
+            reason = R_ON_WINDOW  # the bank's decision is due: Python takes it (on_window)
+        if reason != R_DONE:
+            return reason, k, e, 1
+        e += 1
+    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt)
+    if reason == R_DONE and pred[0] == 1.0:
+        q, omega = E[_Q], E[_OMEGA]
+        q_p, omega_p = pred[2:6], pred[6:9]
+        for c in range(4):
+            q_p[c] = q[c]
+        for c in range(3):
+            omega_p[c] = omega[c]
+        pred[1] = predict_pending(dth, dt, status, z, q_end, pred[1], clock_I, clock_F,
+                                  E[_EXCLUDED], E[_XP], E[_A], E[_GP], q_p, omega_p)
+        pred[0] = 2.0
+    return reason, k, e, 0

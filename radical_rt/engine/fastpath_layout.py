@@ -1,0 +1,65 @@
+"""Layout of the compiled release's three small argument arrays (:func:`radical_rt.engine.fastpath.
+fast_release`), declared once with :class:`radical_rt.contract.layout.Fields`.
+
+``cfg`` (float64): the engine's scalar configuration, rebuilt after every parameter change
+(``FastRelease._fast_config``); ``io`` (float64): the scalar state the kernel loads, updates and
+hands back, and the outputs of a tracker update; ``cnt`` (int64): flags, counters and status codes.
+``IO_LAST_ST + j`` is the last valid epoch of tracker j = 1, 2.
+"""
+
+from __future__ import annotations
+
+from radical_rt.contract.layout import Fields
+
+CFG = Fields("fastpath.cfg", "float64")
+CFG_PROP_WINDOW = CFG.add("prop_window", doc="samples per time-update window")
+CFG_ARW_VAR = CFG.add("arw_var", unit="rad^2/s", doc="angle random walk variance rate")
+CFG_QUANT_VAR = CFG.add("quant_var", unit="rad^2", doc="quantization variance per sample")
+CFG_REGRESSOR_K = CFG.add("regressor_k", doc="regressor reliability threshold (sigmas)")
+CFG_PARITY_WINDOW = CFG.add("parity_window", doc="samples per parity sum")
+CFG_GYRO_GAP = CFG.add("gyro_gap", unit="s", doc="a longer gyro interval is a gap")
+CFG_PARITY_LAG = CFG.add("parity_lag", unit="s", doc="age at which a queued parity sum is due")
+CFG_ST_STALE = CFG.add("st_stale", unit="s", doc="tracker stale after this long without data")
+CFG_TIMING_CONSIDER = CFG.add("timing_consider", unit="s",
+                              doc="time-line sigma above which the calibration is considered")
+CFG_N_GYRO = CFG.add("n_gyro", doc="number of gyros")
+CFG_ST_REF_STARS = CFG.add("st_ref_stars", doc="star count of the nominal tracker noise")
+CFG_GATE_NIS = CFG.add("gate_nis", doc="chi-square(3) gate of a tracker update")
+CFG_EDIT = CFG.add("edit", doc="1: residual editing on")
+CFG_PHI_COL = CFG.add("phi_col", doc="state column of the ST2 misalignment phi2 (-1: none)")
+CFG_LAT_COL = CFG.add("lat_col", doc="state column of the tracker latency tau (-1: none)")
+CFG_PHI_P = CFG.add("phi_p", doc="index of phi2 in xp")
+CFG_LAT_P = CFG.add("lat_p", doc="index of tau in xp")
+CFG_ST_MIN_STARS = CFG.add("st_min_stars", doc="fewer stars: the sample is not used")
+CFG.freeze()
+
+IO = Fields("fastpath.io", "float64")
+IO_T = IO.add("t", unit="s", doc="engine time (in/out)")
+IO_LOCKED_SINCE = IO.add("locked_since", unit="s", doc="lock latch (in/out; inf: not locked)")
+IO_SIG_T = IO.add("sig_t", unit="s", doc="sigma of the time line")
+IO_WAKE_T = IO.add("wake_t", unit="s", doc="event time from which the window hook has work")
+IO_WAKE_E = IO.add("wake_e", unit="s", doc="engine time from which the window hook has work")
+IO_PARITY_OLDEST = IO.add("parity_oldest", unit="s",
+                          doc="epoch of the oldest queued parity sum (inf: none)")
+IO_LAST_ST1 = IO.add("last_st1", unit="s", doc="last valid ST1 epoch (-inf: none)")
+IO_LAST_ST2 = IO.add("last_st2", unit="s", doc="last valid ST2 epoch (-inf: none)")
+IO_MODE = IO.add("mode", doc="the engine's mode code (MODE_*; -1: init)")
+IO_NIS = IO.add("nis", doc="NIS of the tracker update (out)")
+IO_WAKE_EVERY = IO.add("wake_every",
+                       doc="1: the window hook has work after every tracker sample (caller)")
+IO.freeze()
+IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
+
+CNT = Fields("fastpath.cnt", "int64")
+CNT_FLAGS = CNT.add("flags", doc="the engine's flags (in/out)")
+CNT_USED = CNT.add("used", doc="samples propagated (+=)")
+CNT_UNDETERMINED = CNT.add("undetermined", doc="undetermined windows (+=)")
+CNT_MASKED = CNT.add("masked", doc="PROP_MASKED of the last propagate call (caller sets -1)")
+CNT_STATUS = CNT.add("status", doc="kernel status (out)")
+CNT_EDITED = CNT.add("edited", doc="1: the tracker sample was edited (out)")
+CNT_UPDATED = CNT.add("updated", doc="1: a tracker update ran (out)")
+CNT_CONSIDER = CNT.add("consider", doc="1: the gyro calibration was a consider state (out)")
+CNT_INVALID_ST1 = CNT.add("invalid_st1", doc="invalid ST1 samples skipped (+=)")
+CNT_INVALID_ST2 = CNT.add("invalid_st2", doc="invalid ST2 samples skipped (+=)")
+CNT.freeze()
+CNT_INVALID_ST = CNT_INVALID_ST1 - 1  # CNT_INVALID_ST + j: tracker j

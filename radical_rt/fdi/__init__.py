@@ -1,0 +1,1 @@
+"""Fault detection and isolation: parity detector, history, hypothesis bank."""

@@ -1,0 +1,124 @@
+"""The FDI's history (docs/fdi.md §3.1): the recent gyro samples in compact blocks, and the engine
+snapshots the hypothesis bank and the rollback start from. Used by
+:class:`radical_rt.fdi.monitor.FaultMonitor`; the bank's kernels read the blocks in place."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radical_rt.fdi.fdi_bank import append_rows
+
+
+class SampleBuffer:
+    """Recent gyro samples as the engine received them, time order, copied into growing blocks
+    (one float block t, dt, var_extra, dθ; one int block status; one bool block bridged) with a
+    moving start: about 70 bytes per sample, so ``BUFFER_S`` of history costs a few MB per vehicle
+    (keeping the clock's batches themselves cost about 1.5 kB per sample, and the history grew
+    with the stream until a late compaction)."""
+
+    _COLS = 3  # t, dt, var_extra; then the n increments
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        self._f = np.empty((0, 0))
+        self._i = np.empty(0, np.int64)
+        self._b = np.empty(0, np.bool_)
+        self.i0 = self.end = 0
+
+    def __len__(self) -> int:
+        return self.end - self.i0
+
+    def append(self, arrays, a: int = 0, z: int | None = None) -> None:
+        """Copy rows a..z−1 (default: all) of the sample arrays (t, dt, dθ, status, bridged,
+        var_extra)."""
+        t, dt, dth, status, bridged, var_extra = arrays
+        z = len(t) if z is None else z
+        m = z - a
+        if m <= 0:
+            return
+        self.reserve(m, dth.shape[1])
+        append_rows(self._f, self._i, self._b, self.end, t, dt, var_extra, dth, status, bridged,
+                    a, z)
+        self.end += m
+
+    def reserve(self, m: int, n: int) -> None:
+        """Room for m more samples of n gyros after ``end`` (the compiled release appends them
+        itself with :func:`radical_rt.fdi.fdi_bank.append_rows`, then advances ``end``)."""
+        if self._f.shape[1] != self._COLS + n or self.end + m > len(self._i):
+            self._make_room(m, n)
+
+    def _make_room(self, m: int, n: int) -> None:
+        """Move the kept samples to the front; grow (×2) if they and m more do not fit."""
+        keep = self.end - self.i0 if self._f.shape[1] == self._COLS + n else 0
+        cap = max(len(self._i), 1024)
+        while keep + m > cap // 2 and keep + m > 1024:
+            cap *= 2
+        if cap != len(self._i) or self._f.shape[1] != self._COLS + n:
+            f, i, b = np.empty((cap, self._COLS + n)), np.empty(cap, np.int64), np.empty(cap, np.bool_)
+        else:
+            f, i, b = self._f, self._i, self._b
+        if keep:
+            src = slice(self.i0, self.i0 + keep)
+            f[:keep], i[:keep], b[:keep] = self._f[src], self._i[src], self._b[src]
+        self._f, self._i, self._b = f, i, b
+        self.i0, self.end = 0, keep
+
+    def drop_before(self, t_min: float) -> None:
+        """Forget the samples with t < t_min."""
+        t = self._f[self.i0:self.end, 0] if self.end > self.i0 else None
+        if t is not None:
+            self.i0 += int(np.searchsorted(t, t_min, side="left"))
+
+    def span(self, t_after: float, t_upto: float):
+        """The samples with t_after < t ≤ t_upto, without a copy, as (f, status, bridged, a, z):
+        rows a..z−1 of the float block f (m, 3 + n) (t [s], dt [s], var_extra [rad²], dθ [rad]),
+        the int64 block of status bits and the bool block; None if there are none. Valid until
+        the next append or drop."""
+        if self.end == self.i0:
+            return None
+        t = self._f[self.i0:self.end, 0]
+        a = self.i0 + int(np.searchsorted(t, t_after, side="right"))
+        z = self.i0 + int(np.searchsorted(t, t_upto, side="right"))
+        if z <= a:
+            return None
+        return self._f, self._i, self._b, a, z
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        """The rows in use, copied (checkpoints): f (m, 3 + n), status (m,), bridged (m,)."""
+        s = slice(self.i0, self.end)
+        return {"f": self._f[s].copy(), "status": self._i[s].copy(), "bridged": self._b[s].copy()}
+
+    def set_state(self, st: dict[str, np.ndarray]) -> None:
+        """Put :meth:`get_state` rows back (validated by the caller: time order, shapes)."""
+        f = np.asarray(st["f"], np.float64)
+        self.clear()
+        if len(f):
+            self._f, self._i = f.copy(), np.asarray(st["status"], np.int64).copy()
+            self._b = np.asarray(st["bridged"], np.bool_).copy()
+            self.end = len(f)
+
+    def blocks(self):
+        """(f, status, bridged, i0, end): the blocks of :meth:`span` and the rows in use."""
+        return self._f, self._i, self._b, self.i0, self.end
+
+
+@dataclass
+class Snapshot:
+    """Engine state at a window close (after the correction), for the bank and the rollback."""
+
+    t: float  # time of the last propagated sample
+    trk_seq: int  # last tracker sample already applied
+    gen: tuple  # (cold starts, warm starts, attitude inits): a change invalidates the snapshot
+    q: np.ndarray
+    omega: np.ndarray
+    xp: np.ndarray
+    U: np.ndarray
+    d: np.ndarray
+    N: np.ndarray
+
+
+__all__ = ["SampleBuffer", "Snapshot"]

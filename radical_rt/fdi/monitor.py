@@ -1,0 +1,524 @@
+"""Gyro fault detection, isolation and reconfiguration (FDI) from the parity vector and the trackers.
+
+With four gyros the parity space is one-dimensional: the calibrated parity innovation tells *that*
+the four increments disagree, never *which* gyro is wrong (notes/rimu.md §12.2). The monitor
+therefore works in three stages (design and thresholds: docs/fdi.md):
+
+1. **Detection** on the calibrated parity innovation ν = z/σ of every 1-s sum as it closes (z from
+   the current calibration, σ² = hPhᵀ + R with the calibration uncertainty): an instantaneous
+   χ²(1) test, a persistence test (m consecutive χ² exceedances) and a two-sided CUSUM for small
+   or slowly growing faults. The thresholds follow from one design false-alarm rate per hour.
+   A convergence-aware guard holds
+   the sequential tests and raises the instantaneous threshold while the calibration part of σ²
+   dominates the measurement noise (cold start, covariance bumps).
+2. **Isolation** by a bank of attitude hypotheses started from a snapshot of the engine taken
+   before the estimated fault onset: H0 (all four gyros) and H_i (gyro i left out), each an
+   attitude propagation through the buffered gyro samples with the snapshot calibration, and a
+   Schmidt (consider) attitude filter on the buffered tracker samples whose considered states are
+   the snapshot's calibration, ST2 misalignment and latency. A fault in gyro i drives every
+   hypothesis that contains it along its own direction and leaves H_i consistent; the
+   log-likelihood ratio of the tracker innovations decides.
+3. **Reconfiguration** when H_i wins: gyro i is excluded (the engine's three-gyro path, no parity),
+   the calibration and its covariance are rolled back to the pre-fault snapshot (plus the
+   parameter process noise since), the attitude and its cross-covariance come from the winning
+   hypothesis filter, GYRO_<i>_FAILED is set and PARITY_ALARM cleared.
+
+The engine calls :class:`FaultMonitor` through four hooks (``on_gyro``, ``on_tracker``,
+``on_parity_sum``, ``on_window``); all decisions are made in ``on_window``, a deterministic point
+after the correction is folded in, so batch and streaming runs take identical decisions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from radical_rt.contract.conventions import DEG_PER_HR, SIRU_PERIOD_S
+from radical_rt.contract.flags import GYRO_FAILED, Flag
+from radical_rt.fdi.fdi_detect import (
+    CUSUM_SHIFT,
+    PERSIST_M,
+    ParityDetector,
+    Thresholds,
+    chi2_1_isf,
+    chi2_isf,
+    cusum_arl0,
+    cusum_threshold,
+    thresholds,
+)
+from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot
+from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
+from radical_rt.kernels import ud
+from radical_rt.kernels.model import parity_from_stats
+
+# Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
+SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
+BUFFER_S = 600.0  # gyro and tracker history kept for the bank
+ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
+BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
+# outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
+CHECK_MAX_S = 2.0
+QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
+WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gated bank check
+
+
+_ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
+
+# ----------------------------------------------------------------------------- the monitor
+class Reconfiguration(NamedTuple):
+    """The engine state an isolation hands to ``Engine.apply_isolation``: the UD factors U (ns, ns)
+    and d (ns,), the parameters xp (ns − 3,) [internal units], q_body_from_inertial (4,) and the
+    body rate omega (3,) [rad/s] of the winning hypothesis, and dt_noise [s], the time since the
+    snapshot over which the parameter process noise is added."""
+
+    U: np.ndarray
+    d: np.ndarray
+    xp: np.ndarray
+    q: np.ndarray
+    omega: np.ndarray
+    dt_noise: float
+
+
+class FaultMonitor:
+    """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
+    (``fdi_*``, :mod:`radical_rt.contract.params`); defaults apply when a name is missing."""
+
+    #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/test_fdi_bank.py and
+    #: perf/bench_fdi_bank.py put the Python oracle of tests/oracles here)
+    bank_type = HypothesisBank
+
+    def __init__(self) -> None:
+        self._th_key = None
+        self.det: ParityDetector | None = None
+        self.gbuf = SampleBuffer()
+        self.trk: deque = deque()
+        self.trk_seq = 0
+        self.snaps: deque[Snapshot] = deque()
+        self.bank: HypothesisBank | None = None
+        self.state = "waiting"
+        self.gen = None
+        self.alarm: dict[str, Any] | None = None
+        self.last_nu = math.nan
+        self.last_rho = math.nan
+        self.alarms: list[dict[str, Any]] = []  # every alarm raised (time, test, onset estimate)
+        self.isolations: list[dict[str, Any]] = []  # every isolation decision
+        self.parity_log: deque = deque()  # (t0, z) of recent sums, for the fault-size estimate
+        self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
+        self._next_check = -math.inf
+        self._sum_seen = False  # a parity sum closed since the last bookkeeping
+        self._t_decided = -math.inf  # engine time of the running bank's last decision
+        self._llr: tuple = (None, 0.0)  # (fdi_isolation_error_prob, llr_threshold) last computed
+        self.failed_by_fdi: set[int] = set()
+        self.flagged_only: set[int] = set()  # isolated without exclusion (fdi_auto_exclude false)
+        self.counts = {"sums": 0, "alarms": 0, "isolations": 0, "banks": 0, "unconfirmed": 0,
+                       "timeouts": 0}
+
+    # ------------------------------------------------------------------ configuration
+    @staticmethod
+    def _p(eng, name: str, default):
+        return getattr(eng.table.active, "fdi_" + name, default)
+
+    def enabled(self, eng) -> bool:
+        return bool(self._p(eng, "enabled", True))
+
+    def detector(self, eng) -> ParityDetector:
+        t_sum = eng.si.parity_window * SIRU_PERIOD_S
+        key = (float(self._p(eng, "false_alarm_per_hr", 1e-3)), t_sum,
+               float(self._p(eng, "guard_ratio", 4.0)))
+        if key != self._th_key or self.det is None:
+            self.det = ParityDetector(thresholds(key[0], 3600.0 / t_sum), key[2])
+            self._th_key = key
+        return self.det
+
+    def llr_threshold(self, eng) -> float:
+        """The bank's decision margin: −ln(fdi_isolation_error_prob) (cached by value)."""
+        p = self._p(eng, "isolation_error_prob", 1e-6)
+        if p != self._llr[0]:
+            self._llr = (p, -math.log(max(min(float(p), 0.5), 1e-300)))
+        return self._llr[1]
+
+    # ------------------------------------------------------------------ hooks (engine → FDI)
+    def on_gyro(self, t, dt, dtheta, status, bridged, var_extra) -> None:
+        """Every gyro batch the engine receives (before propagation)."""
+        self.gbuf.append((t, dt, dtheta, status, bridged, var_extra))
+
+    def on_gyro_rows(self, arrays, a: int, z: int) -> None:
+        """:meth:`on_gyro` of rows a..z−1 of the sample arrays (t, dt, dθ, status, bridged,
+        var_extra), without views (the stream processor's gyro queue)."""
+        self.gbuf.append(arrays, a, z)
+
+    def on_tracker(self, j: int, t_epoch: float, q_meas, n_stars: int) -> None:
+        """Every valid tracker sample the engine receives (before its update)."""
+        self.trk_seq += 1
+        self.trk.append((self.trk_seq, t_epoch, j, q_meas, n_stars))
+
+    def on_parity_sum(self, eng, par_y, par_t, noise: float) -> None:
+        """Every closed parity sum (before it waits for its lagged update): the calibrated
+        innovation z = Nᵀĉ − h·dx with the current estimate, and σ² = h P hᵀ + R from the UD
+        factors (all states, considered ones included). The next window close runs the
+        bookkeeping (:meth:`on_window`)."""
+        self._sum_seen = True
+        if not self.enabled(eng):
+            return
+        n, ns = eng.n_gyro, eng.ns
+        if self._z is None or self._H.shape[1] != ns - 3:
+            self._z, self._H = np.zeros(1), np.zeros((1, ns - 3))
+            self._th, self._Phi, self._h = np.zeros(3), np.zeros((3, 5 * n)), np.zeros(ns)
+        parity_from_stats(par_y, par_t, eng.xp, eng.A, eng.Gp, eng.N, eng.geo.W, eng.geo.U,
+                          eng.geo.V, self._z, self._H, self._th, self._Phi)
+        h = self._h
+        h[3:] = self._H[0]
+        f = eng.U.T @ h
+        s2 = float(eng.d @ (f * f)) + noise
+        z = float(self._z[0] - h @ eng.dx)
+        if not (s2 > 0.0 and noise > 0.0 and math.isfinite(z)):
+            return
+        det = self.detector(eng)
+        nu, rho = z / math.sqrt(s2), s2 / noise
+        t1 = float(eng.t)
+        t0 = t1 - float(eng.acc_f[2])  # the sum's first sample (duration of the sum)
+        self.counts["sums"] += 1
+        self.last_nu, self.last_rho = nu, rho
+        self.parity_log.append((t0, z))
+        while self.parity_log and self.parity_log[0][0] < t1 - BUFFER_S:
+            self.parity_log.popleft()
+        hit = det.update(nu, rho, t0)
+        if hit is not None and self.bank is None and self.state in ("monitoring", "alarm"):
+            self._raise_alarm(eng, hit[0], hit[1], nu, rho)
+
+    def on_include(self, eng, gyro: int) -> None:
+        """The operator's include_gyro: the gyro is trusted again (its GYRO_<i>_FAILED clears now;
+        monitoring resumes at the next window with fresh statistics)."""
+        eng.flags &= ~int(GYRO_FAILED[gyro])
+        self.failed_by_fdi.discard(int(gyro))
+        self.flagged_only.discard(int(gyro))
+
+    def wake_time(self) -> float:
+        """Engine time from which :meth:`on_window` has work: the engine's compiled fast path
+        skips the hook before it (radical_rt.engine.fastpath). −inf after a parity sum, or during an
+        alarm without a bank. While a bank runs, its decision changes only with a tracker sample
+        (:meth:`wake_on_tracker`) or at the times of :meth:`_bank_wake`."""
+        if self._sum_seen or (self.state == "alarm" and self.bank is None):
+            return -math.inf
+        return self._bank_wake() if self.state == "alarm" else self._next_check
+
+    def wake_on_tracker(self) -> bool:
+        """Whether :meth:`on_window` has work after every tracker sample: a bank is running that
+        the compiled release cannot run itself (:meth:`kernel_bank`)."""
+        return self.state == "alarm" and self.bank is not None and self.kernel_bank() is None
+
+    def kernel_bank(self) -> HypothesisBank | None:
+        """The running bank when the engine's compiled release may run it on its valid tracker
+        samples and hand over only when its decision is due (radical_rt.engine.fastpath; docs/fdi.md
+        §7): a compiled bank, caught up with the tracker buffer, past the window of its alarm
+        (where the decision is held); ``in_release`` False on a bank class
+        keeps it in the hook (the oracle, the benchmark's rows). Between two tracker samples :meth:`on_window` then only
+        repeats the decision it took at the last one, except at the :meth:`_bank_wake` times."""
+        b = self.bank
+        if (self.state != "alarm" or not getattr(b, "in_release", False)
+                or b.trk_seq != self.trk_seq or self._t_decided <= b.t_alarm):
+            return None
+        return b
+
+    def _bank_wake(self) -> float:
+        """While a bank runs, the engine time from which a window without a new tracker sample
+        has work: the first window after the alarm's own (the decision is held there), the next
+        snapshot and the bank's timeout (a little early: a hook that finds nothing is harmless)."""
+        b = self.bank
+        if self._t_decided <= b.t_alarm:
+            return b.t_alarm
+        w = b.t_alarm + BANK_MAX_S - WAKE_EARLY_S
+        return min(w, self.snaps[-1].t + SNAPSHOT_PERIOD_S - WAKE_EARLY_S) if self.snaps else -math.inf
+
+    def on_window(self, eng, t: float) -> None:
+        """After every window close: bookkeeping, snapshots, the bank and the decisions. Outside
+        an alarm the bookkeeping (it only watches for restarts, exclusions and the snapshot
+        period) runs at the window close of each parity sum (1 s by default; the engine's
+        compiled path stops there anyway), and at the latest CHECK_MAX_S of engine time after
+        the last one (no sums: three gyros, FDI disabled, invalid samples)."""
+        if self.state != "alarm" and not self._sum_seen and eng.t < self._next_check:
+            return
+        self._sum_seen = False
+        self._next_check = eng.t + CHECK_MAX_S
+        self._check_gen(eng)
+        self._sync_failed_flags(eng)
+        if not self.enabled(eng):
+            self._stop(eng, "disabled")
+            self.state = "disabled"
+            self.gbuf.clear()  # nothing is kept while disabled
+            self.trk.clear()
+            self.snaps.clear()
+            return
+        if eng.excluded.any():
+            if self.state != "three-gyro":
+                self._stop(eng, "three-gyro")
+            self.state = "three-gyro"  # no parity with three gyros
+        elif self.state in ("three-gyro", "waiting", "disabled") or (
+                self.state == "flagged" and not self.flagged_only):
+            self.state = "monitoring"
+            if self.det is not None:
+                self.det.reset()
+        if not self.snaps or eng.t - self.snaps[-1].t >= SNAPSHOT_PERIOD_S:
+            self._trim(eng)
+            self._snapshot(eng)
+        if self.state != "alarm":
+            return
+        if self.bank is not None:
+            self.bank.advance(eng, self.gbuf, self.trk, t)
+            verdict, gyro, margin = self.bank.decision(self.llr_threshold(eng))
+            self._t_decided = float(eng.t)
+            if eng.t <= self.bank.t_alarm:
+                verdict = "wait"  # PARITY_ALARM is published for at least one window first
+            if verdict == "isolate":
+                self._isolate(eng, gyro, margin)
+                return
+            ended = None
+            if verdict == "none":
+                ended = "unconfirmed"  # the trackers agree with all four gyros
+            elif eng.t - self.bank.t_alarm > BANK_MAX_S:
+                ended = "timeout"
+            if ended is not None:
+                self.counts[ended if ended == "unconfirmed" else "timeouts"] += 1
+                self.alarm["bank"] = ended
+                self.alarm["bank_summary"] = self.bank.summary()
+                self.bank = None
+                self.det.reset()  # a new bank needs fresh evidence (and a new onset estimate)
+        if self.bank is None and self.det is not None and self.det.quiet >= QUIET_SUMS:
+            eng.flags &= ~int(Flag.PARITY_ALARM)
+            self.alarm["t_cleared"] = float(eng.t)
+            self.state = "monitoring"
+
+    # ------------------------------------------------------------------ internals
+    def _check_gen(self, eng) -> None:
+        gen = (eng.counters["cold_starts"], eng.counters["warm_starts"], eng.counters["att_inits"])
+        if gen != self.gen:  # a new attitude (start, gap): history and hypotheses are void
+            self._restart(eng, gen)
+
+    def _restart(self, eng, gen) -> None:
+        self.gen = gen
+        self.snaps.clear()
+        self.bank = None
+        # samples after the engine's time are the new history (a caller may have given the FDI
+        # the samples of a whole release before the engine processed them)
+        self.gbuf.drop_before(float(eng.t))
+        self.trk.clear()
+        if self.det is not None:
+            self.det.reset()
+        eng.flags &= ~int(Flag.PARITY_ALARM)
+        self.state = "monitoring" if eng.att_valid else "waiting"
+
+    def _stop(self, eng, why: str) -> None:
+        if self.bank is not None and self.alarm is not None:
+            self.alarm["bank"] = why
+        self.bank = None
+        eng.flags &= ~int(Flag.PARITY_ALARM)
+
+    def _sync_failed_flags(self, eng) -> None:
+        """GYRO_<i>_FAILED follows the exclusion: an operator's include_gyro clears it."""
+        if not (int(eng.flags) & _ALL_FAILED or self.flagged_only or self.failed_by_fdi):
+            return
+        for i, bit in enumerate(GYRO_FAILED[:eng.n_gyro]):
+            if eng.excluded[i]:
+                self.flagged_only.discard(i)
+            if eng.flags & bit and not eng.excluded[i] and i not in self.flagged_only:
+                eng.flags &= ~int(bit)
+                self.failed_by_fdi.discard(i)
+            elif eng.flags & bit:
+                self.failed_by_fdi.add(i)  # e.g. restored from a checkpoint
+
+    def _trim(self, eng) -> None:
+        t_min = eng.t - BUFFER_S
+        if self.bank is not None:
+            t_min = min(t_min, self.bank.t_last)
+        while self.snaps and self.snaps[0].t < t_min and len(self.snaps) > 1:
+            self.snaps.popleft()
+        t_keep = min(t_min, self.snaps[0].t) if self.snaps else t_min
+        self.gbuf.drop_before(t_keep)
+        keep_seq = self.snaps[0].trk_seq if self.snaps else self.trk_seq
+        if self.bank is not None:
+            keep_seq = min(keep_seq, self.bank.trk_seq)
+        while self.trk and self.trk[0][0] <= keep_seq:
+            self.trk.popleft()
+
+    def _snapshot(self, eng) -> None:
+        if not eng.att_valid or not np.isfinite(eng.t):
+            return
+        self.snaps.append(Snapshot(
+            t=float(eng.t), trk_seq=self.trk_seq, gen=self.gen, q=eng.q.copy(),
+            omega=eng.omega.copy(), xp=eng.xp.copy(), U=eng.U.copy(), d=eng.d.copy(),
+            N=eng.N.copy()))
+
+    def _raise_alarm(self, eng, test: str, t_onset: float, nu: float, rho: float) -> None:
+        self._check_gen(eng)
+        first = self.state != "alarm"
+        eng.flags |= Flag.PARITY_ALARM
+        self.state = "alarm"
+        # The bank starts from the latest snapshot before the onset estimate minus a margin. A CUSUM
+        # excursion starts late for a slowly growing fault (only once its mean exceeds k), so
+        # there the margin is the excursion's own length.
+        margin = ONSET_MARGIN_S
+        if test == "cusum":
+            margin = max(margin, eng.t - t_onset)
+        snap = None
+        for s in self.snaps:
+            if s.t <= t_onset - margin:
+                snap = s
+        if snap is None and self.snaps:
+            snap = self.snaps[0]
+        rec = {"t_alarm": float(eng.t), "test": test, "t_onset_est": float(t_onset),
+               "nu": float(nu), "rho": float(rho), "bank": "running" if snap else "no snapshot",
+               "t_snapshot": float(snap.t) if snap else None}
+        if first:
+            self.counts["alarms"] += 1
+            self.alarms.append(rec)
+            self.alarm = rec
+        else:  # a new trigger during an alarm whose bank ended: a fresh bank, same alarm
+            self.alarm.update({k: v for k, v in rec.items() if k != "t_alarm"})
+        if snap is not None:
+            self.bank = self.bank_type(eng, snap, float(eng.t))
+            self._t_decided = -math.inf
+            self.counts["banks"] += 1
+
+    def _fault_size(self, eng, gyro: int, t_onset: float) -> dict[str, float]:
+        """Size of the fault on ``gyro`` from the parity innovations of the sums that started after
+        the onset estimate: z ≈ p_i f T (T the sum length)."""
+        zs = np.array([z for t0, z in self.parity_log if t0 >= t_onset - 1e-9])
+        t_sum = eng.si.parity_window * SIRU_PERIOD_S
+        p = float(self.bank.snap.N[gyro, 0])
+        if zs.size == 0 or p == 0.0:
+            return {}
+        return {"rate_mean_deg_hr": float(zs.mean() / (p * t_sum) / DEG_PER_HR),
+                "rate_rms_deg_hr": float(np.sqrt(np.mean(zs**2)) / (abs(p) * t_sum) / DEG_PER_HR),
+                "sums": int(zs.size)}
+
+    def _isolate(self, eng, gyro: int, margin: float) -> None:
+        bank = self.bank
+        h = bank.gyros.index(gyro)
+        rec = {"gyro": int(gyro), "t_isolated": float(eng.t), "t_alarm": self.alarm["t_alarm"],
+               "t_onset_est": self.alarm["t_onset_est"], "test": self.alarm["test"],
+               "llr_margin": margin, "t_snapshot": bank.snap.t, "trackers": bank.k,
+               "auto_exclude": bool(self._p(eng, "auto_exclude", True)),
+               "fault_size": self._fault_size(eng, gyro, self.alarm["t_onset_est"]),
+               "bank": bank.summary()}
+        self.isolations.append(rec)
+        self.counts["isolations"] += 1
+        self.alarm["bank"] = f"isolated gyro {gyro}"
+        eng.flags |= GYRO_FAILED[gyro]
+        self.failed_by_fdi.add(int(gyro))
+        self.bank = None
+        if rec["auto_exclude"] and eng.n_gyro - int(eng.excluded.sum()) - 1 >= 3:
+            self._reconfigure(eng, bank, h, gyro)
+            eng.flags &= ~int(Flag.PARITY_ALARM)
+            self.state = "three-gyro"
+        else:  # flagged only: PARITY_ALARM stays, no new bank until the operator acts
+            self.flagged_only.add(int(gyro))
+            self.state = "flagged"
+
+    def _reconfigure(self, eng, bank: HypothesisBank, h: int, gyro: int) -> None:
+        """Exclude ``gyro``; calibration and its covariance back to the pre-fault snapshot (plus the
+        parameter process noise since), attitude and cross-covariance from the winning filter.
+        The FDI computes the state; the engine applies it (``Engine.apply_isolation``)."""
+        ns = eng.ns
+        P = np.empty((ns, ns))
+        q, omega, Ptt, Ptp = bank.final_state(eng, self.gbuf, h)
+        P[:3, :3] = Ptt
+        P[:3, 3:] = Ptp
+        P[3:, :3] = Ptp.T
+        P[3:, 3:] = bank.Ppp
+        U, d = np.eye(ns), np.ones(ns)
+        if ud.factor_ud(P, U, d) == 0 and np.all(d > 0):
+            state = Reconfiguration(U=U, d=d, xp=bank.xp, q=q, omega=omega,
+                                    dt_noise=max(eng.t - bank.snap.t, 0.0))
+        else:  # keep the engine's own covariance, restart the attitude from the trackers
+            state = None
+        eng.apply_isolation(gyro, state)
+        self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
+
+    def compile_bank(self, eng) -> bool:
+        """Run a throw-away bank from the latest snapshot over the buffered samples, so that its
+        kernels are compiled (or loaded from the cache) before the first alarm (the node's
+        start-up warm-up). Changes nothing; False without a snapshot or tracker samples."""
+        if not self.snaps or not self.trk:
+            return False
+        bank = self.bank_type(eng, self.snaps[0], float(eng.t))
+        bank.advance(eng, self.gbuf, self.trk, float(eng.t))
+        bank.final_state(eng, self.gbuf, 0)
+        bank.decision(self.llr_threshold(eng))
+        return bank.k > 0
+
+    # ------------------------------------------------------------------ checkpoints
+    _SCALARS = ("state", "last_nu", "last_rho", "_next_check", "_sum_seen", "_t_decided",
+                "trk_seq")
+
+    def get_state(self) -> dict[str, Any]:
+        """Everything the monitor carries between two hooks (numpy arrays and plain values;
+        radical_rt.io.ckpt_fdi encodes and validates it): a resume continues an alarm in progress
+        with the same history, snapshots and bank."""
+        b = self.bank
+        return {**{k: getattr(self, k) for k in self._SCALARS},
+                "gen": None if self.gen is None else list(self.gen), "alarm": self.alarm,
+                "alarm_is_last": bool(self.alarms) and self.alarm is self.alarms[-1],
+                "alarms": self.alarms, "isolations": self.isolations,
+                "parity_log": np.array(self.parity_log, np.float64).reshape(-1, 2),
+                "failed": sorted(self.failed_by_fdi), "flagged_only": sorted(self.flagged_only),
+                "counts": dict(self.counts), "gbuf": self.gbuf.get_state(),
+                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk],
+                "snaps": [vars(s) for s in self.snaps],
+                "det": None if self.det is None else self.det.get_state(),
+                "bank": None if b is None else {"snap": vars(b.snap), "t_alarm": b.t_alarm,
+                                                **b.get_state()}}
+
+    def set_state(self, eng, st: dict[str, Any]) -> None:
+        """Put a validated :meth:`get_state` back (after the engine's own state)."""
+        for k in self._SCALARS:
+            setattr(self, k, st[k])
+        self.gen = None if st["gen"] is None else tuple(st["gen"])
+        self.alarms, self.isolations = list(st["alarms"]), list(st["isolations"])
+        self.alarm = self.alarms[-1] if st["alarm_is_last"] else st["alarm"]
+        self.parity_log = deque((float(t0), float(z)) for t0, z in st["parity_log"])
+        self.failed_by_fdi, self.flagged_only = set(st["failed"]), set(st["flagged_only"])
+        self.counts.update(st["counts"])
+        self.gbuf.set_state(st["gbuf"])
+        self.trk = deque(st["trk"])
+        self.snaps = deque(Snapshot(**s) for s in st["snaps"])
+        self._th_key, self.det = None, None
+        if st["det"] is not None:
+            self.detector(eng).set_state(st["det"])
+        self.bank = None
+        if st["bank"] is not None:
+            bs = dict(st["bank"])
+            self.bank = self.bank_type(eng, Snapshot(**bs.pop("snap")), bs.pop("t_alarm"))
+            self.bank.set_state(bs)
+
+    # ------------------------------------------------------------------ outputs
+    def detail(self) -> dict[str, Any]:
+        """Plain-type state for the ``fault`` message detail and diagnostics."""
+        d: dict[str, Any] = {"state": self.state, "failed": sorted(self.failed_by_fdi)}
+        if self.det is not None:
+            d.update({"nu_last": _f(self.last_nu), "rho_last": _f(self.last_rho),
+                      "cusum": [self.det.s_pos, self.det.s_neg], "guarded": bool(self.det.guarded),
+                      "thresholds": {"inst": self.det.th.t_inst, "persist": self.det.th.t_persist,
+                                     "cusum_h": self.det.th.cusum_h}})
+        if self.alarm is not None:
+            d["alarm"] = dict(self.alarm)
+        if self.bank is not None:
+            d["bank"] = self.bank.summary()
+        if self.isolations:
+            last = self.isolations[-1]
+            d["last_isolation"] = {k: last[k] for k in (
+                "gyro", "t_onset_est", "t_alarm", "t_isolated", "test", "llr_margin",
+                "fault_size")}
+        d["counts"] = dict(self.counts)
+        return d
+
+
+def _f(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+__all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",
+           "ParityDetector", "Reconfiguration", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
+           "cusum_threshold", "thresholds"]

@@ -1,0 +1,1 @@
+"""Checkpoints and transports (Zenoh, in-memory)."""

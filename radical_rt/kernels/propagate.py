@@ -1,0 +1,232 @@
+"""Per-sample gyro propagation and window accumulation (the 100 Hz hot loop, one Numba call).
+
+Between two time-update window closes (≤ ``window`` samples, or a tracker epoch) the engine
+accumulates, for the structured UD time update (notes §7, §11.5), the attitude transition
+``Phi_aa`` (3, 3), the attitude-parameter coupling ``Phi_ap`` (3, 5n+3; the φ2 columns stay zero),
+the attitude process noise ``Q_aa`` (3, 3) and ``th_acc`` (3,) the sum of the estimated body
+increments θ̂ (the regressor of the λ, μ, du, dv columns, see
+:meth:`radical_rt.engine.filter.Engine._regressor_reliability`). Independently, over a longer parity sum (it
+may span several time-update windows and tracker epochs; the engine closes it), it accumulates the
+sufficient statistics of the parity measurement: ``par_y`` (2, n) the raw increments and ``par_t``
+(2, n) the sample intervals, split by the sign of the corrected increment
+(:func:`radical_rt.kernels.model.parity_from_stats`).
+``acc_i`` (int64[4]) holds (samples in the time-update window, parity samples, parity segments —
+contiguous runs of parity samples, each adds one quantization term to the noise because the
+quantization of the accumulated angle telescopes only over contiguous samples —, 1 if the previous
+sample entered the parity sum) and ``acc_f`` (float64[3]) holds (time-update window duration [s],
+ARW variance of the parity sum [rad²], parity-sum duration [s]).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radical_rt._jit import inline_kernel, kernel
+from radical_rt.kernels.model import (
+    apply_body_quat,
+    apply_body_rotation,
+    correct_increment_lin,
+    jacobian_gyro,
+    masked_pinv,
+)
+from radical_rt.kernels.rotation import quat_to_dcm_into, rotvec_to_quat_into
+
+#: propagate_window return flags (bit set in the second return value)
+PROP_MASKED = 1  # some samples used fewer than all gyros
+PROP_UNDETERMINED = 2  # some samples had fewer than 3 usable gyros (not propagated)
+
+
+@kernel
+def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q, A, W, U_ax,
+                     V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f, th_acc, window,
+                     arw_var, omega):
+    """Propagate samples i0.. of a gyro batch until the window holds ``window`` samples.
+
+    dtheta (m, n) [rad], dt (m,) [s], status (m,) int bits (gyro invalid), bridged (m,) bool,
+    var_extra (m,) [rad²]; excluded (n,) bool (commanded exclusions); xp internal parameters
+    (:mod:`radical_rt.kernels.model`, linear parametrization); A (3, n) estimated scaled axes, W, U_ax, V_ax
+    (3, n) nominal triads, Minv, Gp, N from :func:`model.refresh_axes`; q (4,)
+    q_body_from_inertial, propagated in place; omega (3,) [rad/s] receives the last body rate.
+    Returns (index of the next unprocessed sample, flags PROP_*).
+    """
+    m, n = dtheta.shape
+    wk = sample_work(n)
+    Gm = np.empty((3, n))
+    Mm = np.empty((3, 3))
+    active = wk[8]
+    flags = 0
+    k = i0
+    have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
+    have_ok = False
+    h_last = 0.0  # interval of the last sample propagated [s]
+    moved = False
+    while k < m and acc_i[0] < window:
+        n_act, bits = active_gyros(excluded, status[k], active)
+        G, Mi = Gp, Minv
+        if n_act < n:
+            flags |= PROP_MASKED
+            if bits != have:  # A is constant over the call: one pseudo-inverse per pattern
+                have, have_ok = bits, masked_pinv(A, active, Mm, Gm) >= 0
+            if not have_ok:
+                flags |= PROP_UNDETERMINED
+                k += 1
+                continue
+            G, Mi = Gm, Mm
+        propagate_sample(dtheta[k], dt[k], var_extra[k], n_act == n and not bridged[k], xp, q, A,
+                         W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+                         th_acc, arw_var, wk, False)
+        h_last, moved = dt[k], True
+        k += 1
+    if moved:  # the body rate of the last sample propagated
+        th = wk[4]
+        for r in range(3):
+            omega[r] = th[r] / h_last
+    return k, flags
+
+
+@kernel
+def sample_work(n):
+    """Work arrays of :func:`propagate_sample` for n gyros, one tuple: c, sg, s, gh (n,), th (3,),
+    F (3, 5) (one gyro's Jacobian columns), work4, dq (4,), active (n,) bool, R, T (3, 3). Each is written before it is read."""
+    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(3), np.empty((3, 5)),
+            np.empty(4), np.empty(4), np.empty(n, dtype=np.bool_), np.empty((3, 3)), np.empty((3, 3)))
+
+
+@inline_kernel
+def active_gyros(excluded, status_k, active):
+    """active (n,) ← the gyros neither excluded (n,) bool nor flagged invalid in the status bits
+    status_k of one sample. Returns (their number, their bit pattern)."""
+    n_act = 0
+    bits = 0
+    for i in range(excluded.shape[0]):
+        active[i] = (not excluded[i]) and ((status_k >> i) & 1) == 0
+        if active[i]:
+            n_act += 1
+            bits |= 1 << i
+    return n_act, bits
+
+
+@inline_kernel
+def propagate_sample(dth_k, h, var_k, parity, xp, q, A, W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap,
+                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk, corrected):
+    """One gyro sample (dth_k (n,) [rad] over h [s], extra variance var_k [rad²]) over the active
+    gyros wk[8] whose pseudo-inverse is G (3, n) and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c (left in wk[4];
+    the caller takes the body rate θ̂/h of the last sample of a run from it), the attitude q, the
+    window accumulators (module docstring), and when ``parity`` (all gyros, not
+    bridged) the parity statistics. wk: :func:`sample_work`; ``corrected``: its c, sg, s already
+    hold :func:`radical_rt.kernels.model.correct_increment_lin` of this sample over the active gyros."""
+    c, sg, s, gh, th, F, work4, dq, active, R, T = wk
+    n = dth_k.shape[0]
+    if not corrected:
+        correct_increment_lin(dth_k, h, xp, active, c, sg, s)
+    for r in range(3):
+        th[r] = G[r, 0] * c[0]
+        for i in range(1, n):
+            th[r] += G[r, i] * c[i]
+    for i in range(n):
+        gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
+    rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
+    quat_to_dcm_into(dq, R)
+    # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
+    for j in range(3):
+        x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
+        for r in range(3):
+            Phi_aa[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+    for i in range(n):  # F = ∂θ̂/∂p̂ one gyro (five columns k·n + i) at a time
+        jacobian_gyro(i, gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
+        for k in range(5):
+            j = k * n + i
+            x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
+            for r in range(3):
+                Phi_ap[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2 + F[r, k]
+    for j in range(3):
+        x0, x1, x2 = Q_aa[0, j], Q_aa[1, j], Q_aa[2, j]
+        for r in range(3):
+            T[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+    qn = arw_var * h
+    for r in range(3):
+        for j in range(3):
+            Q_aa[r, j] = T[r, 0] * R[0, j] + T[r, 1] * R[1, j] + T[r, 2] * R[2, j] + qn * Mi[r, j]
+        Q_aa[r, r] += var_k
+    apply_body_quat(q, dq, work4)
+    if parity and N.shape[1] > 0:
+        for i in range(n):  # sufficient statistics of the parity sum (model.parity_from_stats)
+            row = 0 if sg[i] > 0.0 else 1
+            par_y[row, i] += dth_k[i]
+            par_t[row, i] += h
+        if acc_i[3] == 0:
+            acc_i[2] += 1  # a new contiguous run: one more quantization endpoint pair
+        acc_i[1] += 1
+        acc_i[3] = 1
+        acc_f[1] += arw_var * h
+        acc_f[2] += h
+    else:
+        acc_i[3] = 0
+    for r in range(3):
+        th_acc[r] += th[r]
+    acc_i[0] += 1
+    acc_f[0] += h
+
+
+@kernel
+def predict_attitude(dtheta, dt, status, excluded, xp, A, Gp, q, omega):
+    """Propagate the attitude only (no covariance, no accumulators) through samples not yet given
+    to the filter: the low-latency "now" attitude of sample-triggered telemetry.
+
+    dtheta (m, n) [rad], dt (m,) [s], status (m,) gyro-invalid bits, excluded (n,) bool; xp, A, Gp
+    the engine's current calibration (internal parameters, scaled axes, pseudo-inverse). q (4,)
+    q_body_from_inertial, propagated in place; omega (3,) receives the last body rate [rad/s].
+    Samples with fewer than three usable gyros are skipped. Returns the number of samples used.
+    """
+    m, n = dtheta.shape
+    c = np.empty(n)
+    sg = np.empty(n)
+    s = np.empty(n)
+    th = np.empty(3)
+    work4 = np.empty(4)
+    dq = np.empty(4)
+    Gm = np.empty((3, n))
+    Mm = np.empty((3, 3))
+    active = np.empty(n, dtype=np.bool_)
+    used = 0
+    for k in range(m):
+        n_act = 0
+        for i in range(n):
+            active[i] = (not excluded[i]) and ((status[k] >> i) & 1) == 0
+            n_act += 1 if active[i] else 0
+        G = Gp
+        if n_act < n:
+            if masked_pinv(A, active, Mm, Gm) < 0:
+                continue
+            G = Gm
+        h = dt[k]
+        correct_increment_lin(dtheta[k], h, xp, active, c, sg, s)
+        for r in range(3):
+            th[r] = G[r, 0] * c[0]
+            for i in range(1, n):
+                th[r] += G[r, i] * c[i]
+            if h > 0.0:
+                omega[r] = th[r] / h
+        apply_body_rotation(q, th, work4, dq)
+        used += 1
+    return used
+
+
+@kernel
+def predict_now(dtheta, dt, status, a, b, pend_dth, pend_status, pend_dt, use_pend, excluded, xp,
+                A, Gp, q, omega):
+    """:func:`predict_attitude` through samples a..b−1 of the pending arrays (dtheta (m, n), dt,
+    status), then, if use_pend, through one more read (pend_dth (n,), pend_status, interval
+    pend_dt [s]): the attitude of sample-triggered telemetry in one call. q, omega in place."""
+    if b > a:
+        predict_attitude(dtheta[a:b], dt[a:b], status[a:b], excluded, xp, A, Gp, q, omega)
+    if use_pend:
+        n = pend_dth.shape[0]
+        d1 = np.empty((1, n))
+        for i in range(n):
+            d1[0, i] = pend_dth[i]
+        h1 = np.empty(1)
+        h1[0] = pend_dt
+        s1 = np.empty(1, np.int64)
+        s1[0] = pend_status
+        predict_attitude(d1, h1, s1, excluded, xp, A, Gp, q, omega)

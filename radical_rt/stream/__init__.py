@@ -1,0 +1,1 @@
+"""One vehicle's stream: input decoding and checks, queues, releases to the engine, telemetry."""
