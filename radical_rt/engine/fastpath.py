@@ -109,16 +109,30 @@ _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
 MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
-# positions in E of its arrays, by key (radical_rt.engine.engine_layout.SLOTS declares the order once)
-(_EXCLUDED, _XP, _Q, _A, _W, _UAX, _VAX, _MINV, _GP, _N, _PHI_AA, _PHI_AP, _Q_AA, _PAR_Y, _PAR_T,
- _ACC_I, _ACC_F, _TH_ACC, _OMEGA, _U, _D, _DX, _Q_PARAMS, _PARAM_IDX, _Q_DT, _STRUCT_W, _A_W,
- _VAR_W, _CONV_VAR, _KAPPA_LAST, _HBUF, _R3, _H_ATT, _H_PHI, _FBUF, _SBUF, _INNOV, _SIG, _F_W,
- _V_W, _K_W, _ST_SIGMA, _GYRO_MASK, _HWBUF, _ZWBUF, _LBUF) = (E_INDEX[k] for k in (
-    "excluded", "xp", "q", "A", "geo.W", "geo.U", "geo.V", "Minv", "Gp", "N", "Phi_aa", "Phi_ap",
-    "Q_aa", "par_y", "par_t", "acc_i", "acc_f", "th_acc", "omega", "U", "d", "dx", "q_params",
-    "param_idx", "q_dt", "ws.struct", "ws.a", "ws.var", "conv_var", "kappa_last", "Hbuf", "r3",
-    "H_att", "H_phi", "Fbuf", "Sbuf", "innov", "sig", "ws.f", "ws.v", "ws.k", "st_sigma",
-    "gyro_mask", "Hwbuf", "zwbuf", "Lbuf"))
+# positions in E of its arrays, by key (engine_layout.SLOTS declares the order once)
+_EXCLUDED, _XP = E_INDEX["excluded"], E_INDEX["xp"]
+_Q, _A = E_INDEX["q"], E_INDEX["A"]
+_W, _UAX = E_INDEX["geo.W"], E_INDEX["geo.U"]
+_VAX, _MINV = E_INDEX["geo.V"], E_INDEX["Minv"]
+_GP, _N = E_INDEX["Gp"], E_INDEX["N"]
+_PHI_AA, _PHI_AP = E_INDEX["Phi_aa"], E_INDEX["Phi_ap"]
+_Q_AA, _PAR_Y = E_INDEX["Q_aa"], E_INDEX["par_y"]
+_PAR_T, _ACC_I = E_INDEX["par_t"], E_INDEX["acc_i"]
+_ACC_F, _TH_ACC = E_INDEX["acc_f"], E_INDEX["th_acc"]
+_OMEGA, _U = E_INDEX["omega"], E_INDEX["U"]
+_D, _DX = E_INDEX["d"], E_INDEX["dx"]
+_Q_PARAMS, _PARAM_IDX = E_INDEX["q_params"], E_INDEX["param_idx"]
+_Q_DT, _STRUCT_W = E_INDEX["q_dt"], E_INDEX["ws.struct"]
+_A_W, _VAR_W = E_INDEX["ws.a"], E_INDEX["ws.var"]
+_CONV_VAR, _KAPPA_LAST = E_INDEX["conv_var"], E_INDEX["kappa_last"]
+_HBUF, _R3 = E_INDEX["Hbuf"], E_INDEX["r3"]
+_H_ATT, _H_PHI = E_INDEX["H_att"], E_INDEX["H_phi"]
+_FBUF, _SBUF = E_INDEX["Fbuf"], E_INDEX["Sbuf"]
+_INNOV, _SIG = E_INDEX["innov"], E_INDEX["sig"]
+_F_W, _V_W = E_INDEX["ws.f"], E_INDEX["ws.v"]
+_K_W, _ST_SIGMA = E_INDEX["ws.k"], E_INDEX["st_sigma"]
+_GYRO_MASK, _HWBUF = E_INDEX["gyro_mask"], E_INDEX["Hwbuf"]
+_ZWBUF, _LBUF = E_INDEX["zwbuf"], E_INDEX["Lbuf"]
 
 
 @inline_kernel

@@ -33,6 +33,7 @@ from radical_rt.kernels.model import (
     apply_body_rotation,
     correct_increment_lin,
     masked_pinv,
+    select_increments,
     tracker_error,
     tracker_geometry,
 )
@@ -100,43 +101,35 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
         return 0
     nh, n = masks.shape
     wk = sample_work(n)  # one set of work arrays for every hypothesis and sample
-    active = wk[8]
     Gm = np.empty((nh, 3, n))  # per hypothesis: the masked pseudo-inverse of the pattern `have`
     Mm = np.empty((nh, 3, 3))
     have = np.full(nh, -1, np.int64)
     have_ok = np.zeros(nh, np.bool_)
     undet = np.zeros(nh, np.bool_)
-    th = wk[4]
     th_last = np.empty((nh, 3))  # θ̂ [rad] and interval [s] of each hypothesis's last sample
     h_last = np.zeros(nh)
     moved = np.zeros(nh, np.bool_)
-    c, sg, s = wk[0], wk[1], wk[2]
-    c_all, sg_all, s_all = np.empty(n), np.empty(n), np.empty(n)  # the increments corrected once
-    act_all = np.empty(n, np.bool_)
+    every = sample_work(n)  # the sample corrected once, over every valid gyro
     no_mask = np.zeros(n, np.bool_)
     for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
         dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
-        active_gyros(no_mask, st[k], act_all)
-        correct_increment_lin(dth_k, h_k, xp, act_all, c_all, sg_all, s_all)
+        active_gyros(no_mask, st[k], every.active)
+        correct_increment_lin(dth_k, h_k, xp, every.active, every.c, every.sg, every.s)
         for h in range(nh):
-            n_act, bits = active_gyros(masks[h], st[k], active)
+            n_act, bits = active_gyros(masks[h], st[k], wk.active)
             G, Mi = Gp, Minv
             if n_act < n:
                 if bits != have[h]:  # A is constant over the call: one pseudo-inverse per pattern
-                    have[h], have_ok[h] = bits, masked_pinv(A, active, Mm[h], Gm[h]) >= 0
+                    have[h], have_ok[h] = bits, masked_pinv(A, wk.active, Mm[h], Gm[h]) >= 0
                 if not have_ok[h]:
                     undet[h] = True
                     continue
                 G, Mi = Gm[h], Mm[h]
-            for i in range(n):  # correct_increment_lin over this hypothesis's gyros
-                if active[i]:
-                    c[i], sg[i], s[i] = c_all[i], sg_all[i], s_all[i]
-                else:
-                    c[i], sg[i], s[i] = 0.0, 0.0, 1.0
-            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, xp, q[h], A, W, U_ax, V_ax, Mi, G,
+            select_increments(wk.active, every.c, every.sg, every.s, wk.c, wk.sg, wk.s)
+            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, q[h], A, W, U_ax, V_ax, Mi, G,
                              N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y, par_t, acc_i, acc_f,
-                             th_acc, arw_var, wk, True)
-            th_last[h, 0], th_last[h, 1], th_last[h, 2] = th[0], th[1], th[2]
+                             th_acc, arw_var, wk)
+            th_last[h, 0], th_last[h, 1], th_last[h, 2] = wk.th[0], wk.th[1], wk.th[2]
             h_last[h], moved[h] = h_k, True
     for h in range(nh):
         if undet[h]:

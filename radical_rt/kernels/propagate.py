@@ -19,6 +19,8 @@ ARW variance of the parity sum [rad²], parity-sum duration [s]).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
@@ -53,7 +55,6 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     wk = sample_work(n)
     Gm = np.empty((3, n))
     Mm = np.empty((3, 3))
-    active = wk[8]
     flags = 0
     k = i0
     have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
@@ -61,35 +62,55 @@ def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q
     h_last = 0.0  # interval of the last sample propagated [s]
     moved = False
     while k < m and acc_i[0] < window:
-        n_act, bits = active_gyros(excluded, status[k], active)
+        n_act, bits = active_gyros(excluded, status[k], wk.active)
         G, Mi = Gp, Minv
         if n_act < n:
             flags |= PROP_MASKED
             if bits != have:  # A is constant over the call: one pseudo-inverse per pattern
-                have, have_ok = bits, masked_pinv(A, active, Mm, Gm) >= 0
+                have, have_ok = bits, masked_pinv(A, wk.active, Mm, Gm) >= 0
             if not have_ok:
                 flags |= PROP_UNDETERMINED
                 k += 1
                 continue
             G, Mi = Gm, Mm
-        propagate_sample(dtheta[k], dt[k], var_extra[k], n_act == n and not bridged[k], xp, q, A,
-                         W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
-                         th_acc, arw_var, wk, False)
+        correct_increment_lin(dtheta[k], dt[k], xp, wk.active, wk.c, wk.sg, wk.s)
+        propagate_sample(dtheta[k], dt[k], var_extra[k], n_act == n and not bridged[k], q, A, W,
+                         U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+                         th_acc, arw_var, wk)
         h_last, moved = dt[k], True
         k += 1
     if moved:  # the body rate of the last sample propagated
-        th = wk[4]
         for r in range(3):
-            omega[r] = th[r] / h_last
+            omega[r] = wk.th[r] / h_last
     return k, flags
+
+
+class SampleWork(NamedTuple):
+    """Work arrays of :func:`propagate_sample` (:func:`sample_work`; each is written before it is
+    read): the corrected increments c, their signs sg and scale s (n,) of
+    :func:`radical_rt.kernels.model.correct_increment_lin`, gh = Aᵀθ̂ (n,), θ̂ th (3,) [rad, body],
+    one gyro's Jacobian columns F (3, 5), work4 and dq (4,), the active gyros (n,) bool, R(θ̂) and
+    a product T (3, 3)."""
+
+    c: np.ndarray
+    sg: np.ndarray
+    s: np.ndarray
+    gh: np.ndarray
+    th: np.ndarray
+    F: np.ndarray
+    work4: np.ndarray
+    dq: np.ndarray
+    active: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
 
 
 @kernel
 def sample_work(n):
-    """Work arrays of :func:`propagate_sample` for n gyros, one tuple: c, sg, s, gh (n,), th (3,),
-    F (3, 5) (one gyro's Jacobian columns), work4, dq (4,), active (n,) bool, R, T (3, 3). Each is written before it is read."""
-    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(3), np.empty((3, 5)),
-            np.empty(4), np.empty(4), np.empty(n, dtype=np.bool_), np.empty((3, 3)), np.empty((3, 3)))
+    """A :class:`SampleWork` for n gyros."""
+    return SampleWork(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(3),
+                      np.empty((3, 5)), np.empty(4), np.empty(4), np.empty(n, dtype=np.bool_),
+                      np.empty((3, 3)), np.empty((3, 3)))
 
 
 @inline_kernel
@@ -107,18 +128,16 @@ def active_gyros(excluded, status_k, active):
 
 
 @inline_kernel
-def propagate_sample(dth_k, h, var_k, parity, xp, q, A, W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap,
-                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk, corrected):
+def propagate_sample(dth_k, h, var_k, parity, q, A, W, U_ax, V_ax, Mi, G, N, Phi_aa, Phi_ap,
+                     Q_aa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk):
     """One gyro sample (dth_k (n,) [rad] over h [s], extra variance var_k [rad²]) over the active
-    gyros wk[8] whose pseudo-inverse is G (3, n) and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c (left in wk[4];
-    the caller takes the body rate θ̂/h of the last sample of a run from it), the attitude q, the
-    window accumulators (module docstring), and when ``parity`` (all gyros, not
-    bridged) the parity statistics. wk: :func:`sample_work`; ``corrected``: its c, sg, s already
-    hold :func:`radical_rt.kernels.model.correct_increment_lin` of this sample over the active gyros."""
+    gyros wk.active, whose corrected increments wk.c, wk.sg, wk.s the caller has computed
+    (:func:`radical_rt.kernels.model.correct_increment_lin`) and whose pseudo-inverse is G (3, n)
+    and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c (left in wk.th; the caller takes the body rate θ̂/h of the last
+    sample of a run from it), the attitude q, the window accumulators (module docstring), and when
+    ``parity`` (all gyros, not bridged) the parity statistics. wk: a :class:`SampleWork`."""
     c, sg, s, gh, th, F, work4, dq, active, R, T = wk
     n = dth_k.shape[0]
-    if not corrected:
-        correct_increment_lin(dth_k, h, xp, active, c, sg, s)
     for r in range(3):
         th[r] = G[r, 0] * c[0]
         for i in range(1, n):
