@@ -175,25 +175,6 @@ def process_archive(path: str | Path, table: ParamTable):
 
     sp = make_processor(table)
     e = sp.engine
-    log = {k: {"n": 0, "sum": 0.0, "n_locked": 0, "sum_locked": 0.0, "edited": 0}
-           for k in ("st1", "st2", "parity")}
-    update = e._vector_update
-
-    def logged(kind, H, z, rdiag, gate, consider=None):
-        used = update(kind, H, z, rdiag, gate, consider)
-        rec = log[kind]
-        if not used:
-            rec["edited"] += 1
-            return used
-        nis = e.diag_last[kind][2]
-        rec["n"] += 1
-        rec["sum"] += nis
-        if e.timing_sigma() <= e.si.timing_consider_s:
-            rec["n_locked"] += 1
-            rec["sum_locked"] += nis
-        return used
-
-    e._vector_update = logged  # type: ignore[method-assign]  # instance-level logging hook
     truth = None
     with ArchiveReader(str(path)) as reader:
         for topic, _, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
@@ -202,6 +183,10 @@ def process_archive(path: str | Path, table: ParamTable):
                 continue
             sp.feed(topic[1:], data)
     sp.end_stream(None)
+    c, nis, locked = e.counters, e.nis_sum, e.nis_locked
+    log = {k: {"n": c[f"{k}_used"], "sum": nis[k], "n_locked": locked[k][0],
+               "sum_locked": locked[k][1], "edited": c[f"{k}_edited"]}
+           for k in ("st1", "st2", "parity")}
     return sp, (msgpack.unpackb(truth, raw=False) if truth is not None else None), log
 
 

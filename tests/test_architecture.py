@@ -27,7 +27,6 @@ KNOWN = {
     ("replayer/archive.py", "r._header"),  # the same class
     ("replayer/archive.py", "r._reader"),  # the same class
     ("replayer/archive.py", "r._summary"),  # the same class
-    ("studies/montecarlo.py", "e._vector_update"),
 }
 
 

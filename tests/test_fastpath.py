@@ -1,8 +1,9 @@
-"""The engine's compiled fast path (radical_rt/engine/fastpath.py) against the reference path.
+"""The engine's compiled loop (radical_rt/engine/fastpath.py) against the Python oracle of its steps
+(tests/oracles/reference_engine.py).
 
-The fast path must give bit-identical results: same output messages byte for byte, same final UD
+The two must give bit-identical results: same output messages byte for byte, same final UD
 factors, estimates, counters and diagnostics. Each case runs the same input stream through a
-stream processor with ``engine.fast`` on and off:
+stream processor with the product engine and with the oracle:
 
 * a nominal 2006216 stream (slews, invalid and dropped tracker samples, parity sums, timing
   consider updates while the SIRU clock locks);
@@ -22,14 +23,16 @@ from radical_rt.apps.batch import make_processor
 from radical_rt.contract.params import ParamTable
 from radical_rt.engine import fastpath
 from support.streams import damaged, input_messages, make_archive
+from tests.oracles.dense_engine import make_processor as dense_make_processor
+from tests.oracles.reference_engine import ReferenceEngine
 
 
 def run(messages, fast: bool, params=None):
-    """Feed (topic, log_ns, payload) messages; return (output bytes, processor)."""
+    """Feed (topic, log_ns, payload) messages through the product engine (fast) or the Python
+    oracle; return (output bytes, processor)."""
     table = ParamTable()
     table.set(params or {})
-    sp = make_processor(table)
-    sp.engine.fast = fast
+    sp = make_processor(table) if fast else dense_make_processor(ReferenceEngine, table)
     out = []
     for topic, _ns, data in messages:
         out += [(t, msgpack.packb(m)) for t, m in sp.feed(topic, data)]
@@ -148,8 +151,7 @@ def test_packet_change_mid_stream_is_bit_identical(nominal):
     half = len(nominal) // 2
 
     def switched(fast: bool):
-        sp = make_processor(ParamTable())
-        sp.engine.fast = fast
+        sp = make_processor(ParamTable()) if fast else dense_make_processor(ReferenceEngine)
         out = []
         for i, (topic, _ns, data) in enumerate(nominal):
             if i == half:

@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 
 from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.contract.state import PARAM_GROUPS
-from radical_rt.engine.filter import Engine
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
+from tests.oracles.reference_engine import ReferenceEngine
 
 OFFSET_S = 0.020
 
@@ -27,7 +27,7 @@ OFFSET_S = 0.020
 def _engine_at(omega_body, seed=0):
     """An engine with a valid attitude, a body rate and nonzero φ2, at t = 100 s."""
     rng = np.random.default_rng(seed)
-    e = Engine()
+    e = ReferenceEngine()  # its Python tracker rows: the same kernel the engine runs
     e.q[:] = Rotation.from_rotvec(rng.normal(size=3)).as_quat()
     e.omega[:] = omega_body
     e.xp[e.layout["phi2"].start - 3:e.layout["phi2"].stop - 3] = rng.normal(size=3) * 1e-3

@@ -20,6 +20,7 @@ from radical_rt.clock.siru_clock import GyroBatch
 from radical_rt.engine.filter import Engine
 from radical_rt.kernels.propagate import predict_attitude
 from radical_rt.stream.telemetry import PacketError, parse_packets
+from radical_rt.stream.tracker_queue import EventBlock, TrackerQueue
 from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
@@ -39,7 +40,8 @@ def test_predict_attitude_matches_filter_propagation():
     status[3] = 0b0100  # one sample without gyro C: masked pseudo-inverse in both paths
     q, omega = e.q.copy(), np.zeros(3)
     used = predict_attitude(dth, np.full(m, 0.01), status, e.excluded, e.xp, e.A, e.Gp, q, omega)
-    e.gyro(t, np.full(m, 0.01), dth, status, np.zeros(m, bool), np.zeros(m))
+    arrays = (t, np.full(m, 0.01), dth, status, np.zeros(m, bool), np.zeros(m))
+    e.release(arrays, 0, m, EventBlock(TrackerQueue(), 0, 0))  # gyro samples, no tracker
     assert used == m
     np.testing.assert_allclose(q, e.q, rtol=0, atol=1e-15)
     np.testing.assert_allclose(omega, e.omega, rtol=0, atol=1e-18)

@@ -49,7 +49,9 @@ SLOTS = _slots("""
     Phi_ap:f2 Q_aa:f2 par_y:f2 par_t:f2 acc_i:i1 acc_f:f1 th_acc:f1 omega:f1 U:f2 d:f1 dx:f1
     q_params:f1 param_idx:i1 q_dt:f1 ws.struct:f2 ws.a:f1 ws.var:f1 conv_var:f1 kappa_last:f1
     Hbuf:f2 r3:f1 H_att:f2 H_phi:f2 Fbuf:f2 Sbuf:f2 innov:f1 sig:f1 ws.f:f1 ws.v:f1 ws.k:f1
-    st_sigma:f1 gyro_mask:b1 Hwbuf:f2 zwbuf:f1 Lbuf:f2
+    st_sigma:f1 gyro_mask:b1 Hwbuf:f2 zwbuf:f1 Lbuf:f2 p0:f1 scale_mask:b1 pq:f2 pq_i:i1
+    par_innov:f1 par_sig:f1 z_par:f1 H_par:f2 theta_par:f1 Phi_par:f2 fdi_z:f1 fdi_H:f2
+    fdi_th:f1 fdi_Phi:f2 fdi_h:f1
 """)
 
 #: "owner.name" (or "name") → position in E

@@ -7,7 +7,7 @@ mode, and turns them into output snapshots (SI) and msgpack-able checkpoints.
 from __future__ import annotations
 
 import math
-from collections import defaultdict, deque
+from collections import defaultdict
 from typing import Any
 
 import numpy as np
@@ -45,7 +45,14 @@ class EngineState:
         self.z_par, self.H_par = np.zeros(nr), np.zeros((nr, npar))  # parity measurement buffers
         self.par_y, self.par_t = np.zeros((2, n)), np.zeros((2, n))  # parity-sum statistics
         self.theta_par, self.Phi_par = np.zeros(3), np.zeros((3, 5 * n))
-        self.parity_queue: deque = deque()  # closed parity sums waiting for their lag
+        # closed parity sums waiting for their lag: a ring of rows (t, noise, par_y, par_t)
+        # (see parity_queue), head and count in pq_i; grown by the engine's params_changed
+        self.pq, self.pq_i = np.zeros((16, 2 + 4 * n)), np.zeros(2, np.int64)
+        self.par_innov, self.par_sig = np.zeros(nr), np.zeros(nr)  # last parity update
+        self.p0 = np.zeros(npar)  # initial parameter variances (numeric-fault reset) [unit²]
+        # the FDI statistic of a queued parity sum (its own buffers: z (1,), H (1, npar), θ, Φ, h)
+        self.fdi_z, self.fdi_H = np.zeros(1), np.zeros((1, npar))
+        self.fdi_th, self.fdi_Phi, self.fdi_h = np.zeros(3), np.zeros((3, 5 * n)), np.zeros(ns)
         # acc_f: window length, parity-sum noise and length, time since the parameter noise was
         # last added (timeupdate.ACC_NOISE_T) [s]
         self.acc_i, self.acc_f = np.zeros(4, np.int64), np.zeros(4)
@@ -201,7 +208,7 @@ class EngineState:
             "t": self.t, "q_body_from_inertial": self.q.tolist(), "flags": int(self.flags),
             "mode": self.mode, "omega_body": self.omega.tolist(), "est": self.estimates(),
             "sigma": self.sigmas(), "att_sigma": self.att_sigma(),
-            "residuals": self.residual_stats(), "counters": dict(self.counters),
+            "residuals": self.residual_stats(), "counters": dict(sorted(self.counters.items())),
             "excluded": [int(i) for i in np.nonzero(self.excluded)[0]],
         }
 

@@ -1,38 +1,29 @@
-"""The engine's compiled fast path: a run of gyro samples, or one tracker sample, in one Numba call.
+"""The engine's per-event loop, compiled: one call runs a whole release of the stream processor.
 
-:class:`radical_rt.engine.filter.Engine` processes events with small kernels glued by Python (the
-reference path, which the dense-covariance engine of tests/oracles/dense_engine.py also runs). Most of the
-glue does the same thing at every 10 Hz window close: close the window, fold the correction,
-re-run the convergence test, find that nothing is due. The kernels here run that common case in
-compiled code, calling the *same* kernels in the same order with the same arguments (so the
-results are bit-identical; tests/test_fastpath.py checks it), and return to Python as soon as the
-reference path would do something only Python does:
+:func:`fast_release` takes the gyro samples and tracker samples the stream processor releases, in
+time order, and runs every step of the filter on them: propagation, the window close (time update,
+lock latch, parity sums queued with their FDI statistic, lagged parity updates), attitude
+initialization, gyro gaps (warm start), tracker updates (all cases of docs/engine.md §3.4:
+plain, whitened with the clock's timing term, with the calibration considered), the correction
+fold, numeric-fault recovery, flags and counters, and the FDI hypothesis bank on its tracker
+samples. The steps themselves are in :mod:`radical_rt.engine.steps`; they exist once.
 
-* ``R_SLOW``: a gyro gap at the next sample (warm start, counters) — the reference gyro path
-  takes the rest of the run;
-* ``R_CLOSE_TAIL``: a window closed with a kernel error, or a parity sum is complete, or a queued
-  parity sum has waited its lag (parity queue, FDI parity hook, parity update);
-* ``R_TRACKER_SLOW``: the whitening of the tracker noise with the clock's timing term failed
-  (Python redoes the update and handles the error);
-* ``R_VEC_STATUS`` / ``R_NUMERIC_FOLD``: a kernel error in the tracker update or the fold;
-* ``R_ON_WINDOW``: the window hook has work — the flags or the mode would change (stale
-  trackers, convergence, an edited tracker sample), or the event time reached ``wake_t`` (a window packet
-  or diag due) or the engine time reached ``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold
-  ending), or, with io[IO_WAKE_EVERY] set, after every tracker sample (an FDI hypothesis bank is running
-  that the kernel does not run itself), or after a tracker sample at which the bank the kernel
-  runs (argument ``bk``) has its decision due.
-  Python then runs :meth:`Engine.on_window` exactly as the reference path does.
+A call returns to Python only for the window hook (``R_ON_WINDOW``), the Python collaborators'
+turn at a close: the flags differ from those at the start of the call or would change (stale
+trackers, convergence), the mode would change, a parity sum was queued (FDI detector, excitation
+monitor), the event time reached ``wake_t`` (a window packet or diag due) or the engine time
+``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold ending), with io[IO_WAKE_EVERY] set after every
+tracker sample (an FDI bank the kernel does not run itself), or after a tracker sample at which
+the bank the kernel runs (argument ``bk``) has its decision due. Python then runs
+``Engine.on_window`` and calls again from where this call stopped. :func:`engine_event` runs a
+step for Python (commands, checks, the end of a stream) on the same state.
 
-Arguments shared by both kernels (built once by the engine, see ``Engine._fast_args``):
-
-``E``: tuple of the engine's arrays, in the order unpacked below (all updated in place); the
-engine passes them packed in three flat buffers (``EngineState._pack``, and
-:func:`radical_rt.engine.engine_layout.unpack`, generated from the layout table), which
-costs one argument each instead of one per array when Python calls the kernel.
+``E``: tuple of the engine's arrays (:func:`radical_rt.engine.engine_layout.unpack` of the
+engine's three flat buffers, one argument each instead of one per array; all updated in place).
 ``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
 kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
-and status codes (int64), declared in :mod:`radical_rt.engine.fastpath_layout` (``CFG_*``, ``IO_*``,
-``CNT_*``; docs/engine.md lists them).
+and status codes (int64), declared in :mod:`radical_rt.engine.fastpath_layout` (``CFG_*``,
+``IO_*``, ``CNT_*``; docs/engine.md lists them).
 """
 
 from __future__ import annotations
@@ -49,38 +40,38 @@ from radical_rt.engine.fastpath_layout import (
     CFG_EDIT,
     CFG_GATE_NIS,
     CFG_GYRO_GAP,
+    CFG_HOOK_SUM,
     CFG_LAT_COL,
     CFG_LAT_P,
-    CFG_N_GYRO,
-    CFG_PARITY_LAG,
-    CFG_PARITY_WINDOW,
     CFG_PHI_COL,
     CFG_PHI_P,
     CFG_PROP_WINDOW,
-    CFG_QUANT_VAR,
-    CFG_REGRESSOR_K,
     CFG_ST_MIN_STARS,
     CFG_ST_REF_STARS,
     CFG_ST_STALE,
     CFG_TIMING_CONSIDER,
     CNT_CONSIDER,
     CNT_EDITED,
+    CNT_END,
     CNT_FLAGS,
+    CNT_FLAGS0,
+    CNT_GAPS,
     CNT_INVALID_ST,
-    CNT_INVALID_ST1,
-    CNT_INVALID_ST2,
     CNT_MASKED,
+    CNT_PAR_SUMS,
+    CNT_PRE_INIT,
     CNT_STATUS,
     CNT_UNDETERMINED,
     CNT_UPDATED,
     CNT_USED,
+    IO_ATT_VALID,
     IO_LAST_ST,
     IO_LAST_ST1,
     IO_LAST_ST2,
     IO_LOCKED_SINCE,
     IO_MODE,
     IO_NIS,
-    IO_PARITY_OLDEST,
+    IO_NIS_SUM_PAR,
     IO_SIG_T,
     IO_T,
     IO_WAKE_E,
@@ -88,10 +79,21 @@ from radical_rt.engine.fastpath_layout import (
     IO_WAKE_T,
 )
 from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.engine.steps import (
+    MODE_INIT,
+    begin_attitude_init,
+    close_window,
+    fold,
+    init_attitude,
+    numeric_fault,
+    pop_parity,
+    queue_parity,
+    reset_parity,
+    warm_reset,
+)
 from radical_rt.fdi.fdi_bank import BI_ON, append_rows, bank_sample
-from radical_rt.kernels.model import fold_correction, tracker_rows
+from radical_rt.kernels.model import tracker_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
-from radical_rt.kernels.timeupdate import close_time_window
 from radical_rt.kernels.ud import decorrelate, variances_within
 from radical_rt.kernels.updates import (
     gated_update,
@@ -100,12 +102,12 @@ from radical_rt.kernels.updates import (
     unwhiten_diagnostics,
 )
 
-(R_DONE, R_SLOW, R_CLOSE_TAIL, R_TRACKER_SLOW, R_VEC_STATUS, R_NUMERIC_FOLD,
- R_ON_WINDOW) = range(7)
+R_DONE, R_ON_WINDOW = 0, 1  # the reasons a call returns: all done; the window hook has work
 
 _ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
 _ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
 _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+_GYRO_GAP = int(Flag.GYRO_GAP)
 MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
@@ -119,6 +121,7 @@ _PHI_AA, _PHI_AP = E_INDEX["Phi_aa"], E_INDEX["Phi_ap"]
 _Q_AA, _PAR_Y = E_INDEX["Q_aa"], E_INDEX["par_y"]
 _PAR_T, _ACC_I = E_INDEX["par_t"], E_INDEX["acc_i"]
 _ACC_F, _TH_ACC = E_INDEX["acc_f"], E_INDEX["th_acc"]
+_PQ_I = E_INDEX["pq_i"]
 _OMEGA, _U = E_INDEX["omega"], E_INDEX["U"]
 _D, _DX = E_INDEX["d"], E_INDEX["dx"]
 _Q_PARAMS, _PARAM_IDX = E_INDEX["q_params"], E_INDEX["param_idx"]
@@ -136,117 +139,104 @@ _ZWBUF, _LBUF = E_INDEX["zwbuf"], E_INDEX["Lbuf"]
 
 
 @inline_kernel
-def _close(E, cfg, io, cnt):
-    """Close the time-update window (as Engine._close_window). Returns True when Python must take
-    the rest of the close (kernel error, parity sum complete or due); else runs the lock latch."""
-    Minv, Phi_aa, Phi_ap, Q_aa = E[_MINV], E[_PHI_AA], E[_PHI_AP], E[_Q_AA]
-    acc_i, acc_f, th_acc, kappa_last = E[_ACC_I], E[_ACC_F], E[_TH_ACC], E[_KAPPA_LAST]
-    U, d, q_params, param_idx, q_dt = E[_U], E[_D], E[_Q_PARAMS], E[_PARAM_IDX], E[_Q_DT]
-    struct_w, a_w = E[_STRUCT_W], E[_A_W]
-    noise_var = cfg[CFG_ARW_VAR] * acc_f[0] + cfg[CFG_QUANT_VAR]
-    status, kappa = close_time_window(U, d, Phi_aa, Phi_ap, Q_aa, th_acc, acc_i, acc_f, Minv,
-                                      int(cfg[CFG_N_GYRO]), noise_var, cfg[CFG_REGRESSOR_K],
-                                      q_params, param_idx, q_dt,
-                                      struct_w, a_w)
-    kappa_last[0] = kappa
-    cnt[CNT_STATUS] = status
-    t = io[IO_T]
-    if (status != 0 or acc_i[1] >= cfg[CFG_PARITY_WINDOW]
-            or io[IO_PARITY_OLDEST] <= t - cfg[CFG_PARITY_LAG]):
-        return True
-    if io[IO_SIG_T] > cfg[CFG_TIMING_CONSIDER]:  # Engine._update_lock_latch
-        io[IO_LOCKED_SINCE] = math.inf
-    elif io[IO_LOCKED_SINCE] == math.inf:
-        io[IO_LOCKED_SINCE] = t
-    return False
-
-
-@inline_kernel
 def _window_due(E, cfg, io, cnt, t_event):
-    """Whether Engine.on_window(t_event) would act (see the module docstring)."""
+    """Whether the window hook (Engine.on_window(t_event)) has work after a close: the flags
+    differ from those at the start of the call or would change (stale trackers, convergence),
+    the mode would change, a parity sum was queued (with cfg[CFG_HOOK_SUM]), the event time
+    reached wake_t or the engine time wake_e (see the module docstring)."""
     excluded, U, d, var_w, conv_var = E[_EXCLUDED], E[_U], E[_D], E[_VAR_W], E[_CONV_VAR]
     f = cnt[CNT_FLAGS]
     f = (f | _ST1_STALE) if t_event - io[IO_LAST_ST1] > cfg[CFG_ST_STALE] else (f & ~_ST1_STALE)
     f = (f | _ST2_STALE) if t_event - io[IO_LAST_ST2] > cfg[CFG_ST_STALE] else (f & ~_ST2_STALE)
-    if variances_within(U, d, var_w, conv_var, 3):
-        f &= ~_NOT_CONVERGED
+    if io[IO_ATT_VALID] == 0.0:
+        mode = MODE_INIT
     else:
-        f |= _NOT_CONVERGED
-    if f & _NUMERIC:
-        mode = MODE_DEGRADED
-    else:
-        mode = MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED
-        for i in range(excluded.shape[0]):
-            if excluded[i]:
-                mode = MODE_DEGRADED
-    return (f != cnt[CNT_FLAGS] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
-            or io[IO_T] >= io[IO_WAKE_E])
-
-
-@inline_kernel
-def _fold(E):
-    """Engine._apply_correction: fold dx into q and xp, rebuild the geometry (> 0: singular)."""
-    return fold_correction(E[_DX], E[_Q], E[_XP], E[_W], E[_UAX], E[_VAX], E[_A], E[_MINV],
-                           E[_GP], E[_N])
+        if variances_within(U, d, var_w, conv_var, 3):
+            f &= ~_NOT_CONVERGED
+        else:
+            f |= _NOT_CONVERGED
+        if f & _NUMERIC:
+            mode = MODE_DEGRADED
+        else:
+            mode = MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED
+            for i in range(excluded.shape[0]):
+                if excluded[i]:
+                    mode = MODE_DEGRADED
+    return (f != cnt[CNT_FLAGS0] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
+            or io[IO_T] >= io[IO_WAKE_E] or (cfg[CFG_HOOK_SUM] != 0.0 and cnt[CNT_PAR_SUMS] > 0))
 
 
 @inline_kernel
 def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt):
-    """Propagate samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status
-    (m,) int bits, bridged (m,) bool, var_extra (m,) [rad²]), closing windows on the way, as
-    Engine.gyro with an attitude does. Returns (reason R_*, index of the next sample)."""
+    """Samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status (m,) int
+    bits, bridged (m,) bool, var_extra (m,) [rad²]): before an attitude exists only counted; a
+    gap (dt > gyro_gap) loses the attitude (GYRO_GAP, warm start without bump); otherwise
+    propagated window by window, closing each full window (close, correction fold). Returns
+    (R_DONE, upto), or (R_ON_WINDOW, next sample) when the window hook has work after a close."""
     excluded, xp, q, A, W, U_ax, V_ax = E[_EXCLUDED], E[_XP], E[_Q], E[_A], E[_W], E[_UAX], E[_VAX]
     Minv, Gp, N, Phi_aa, Phi_ap = E[_MINV], E[_GP], E[_N], E[_PHI_AA], E[_PHI_AP]
     Q_aa, par_y, par_t, acc_i, acc_f = E[_Q_AA], E[_PAR_Y], E[_PAR_T], E[_ACC_I], E[_ACC_F]
     th_acc, omega = E[_TH_ACC], E[_OMEGA]
     window, arw, gap_s = int(cfg[CFG_PROP_WINDOW]), cfg[CFG_ARW_VAR], cfg[CFG_GYRO_GAP]
     while k < upto:
-        if dt[k] > gap_s:
-            return R_SLOW, k
+        if io[IO_ATT_VALID] == 0.0:  # waiting for the first tracker: nothing to propagate
+            cnt[CNT_PRE_INIT] += upto - k
+            io[IO_T] = t[upto - 1]
+            return R_DONE, upto
+        if dt[k] > gap_s:  # the attitude is lost; resume at the next tracker sample
+            cnt[CNT_FLAGS] |= _GYRO_GAP
+            cnt[CNT_GAPS] += 1
+            warm_reset(E, io, cnt)
+            io[IO_T] = t[k]
+            k += 1
+            continue
         stop = k + 1
         while stop < upto and not dt[stop] > gap_s:
             stop += 1
-        k_next, pflags = propagate_window(
-            dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k, excluded,
-            xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
-            th_acc, window, arw, omega)
-        cnt[CNT_USED] += k_next - k
-        if pflags & PROP_UNDETERMINED:
-            cnt[CNT_UNDETERMINED] += 1
-        cnt[CNT_MASKED] = 1 if pflags & PROP_MASKED else 0
-        io[IO_T] = t[k_next - 1]
-        k = k_next
-        if acc_i[0] >= window:
-            if _close(E, cfg, io, cnt):
-                return R_CLOSE_TAIL, k
-            if _fold(E) > 0:
-                return R_NUMERIC_FOLD, k
-            if _window_due(E, cfg, io, cnt, io[IO_T]):
-                return R_ON_WINDOW, k
+        while k < stop and io[IO_ATT_VALID] != 0.0:
+            k_next, pflags = propagate_window(
+                dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k,
+                excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y,
+                par_t, acc_i, acc_f, th_acc, window, arw, omega)
+            cnt[CNT_USED] += k_next - k
+            if pflags & PROP_UNDETERMINED:
+                cnt[CNT_UNDETERMINED] += 1
+            cnt[CNT_MASKED] = 1 if pflags & PROP_MASKED else 0
+            io[IO_T] = t[k_next - 1]
+            k = k_next
+            if acc_i[0] >= window:
+                close_window(E, cfg, io, cnt)
+                fold(E, io, cnt)
+                if _window_due(E, cfg, io, cnt, io[IO_T]):
+                    return R_ON_WINDOW, k
     return R_DONE, k
 
 
 @inline_kernel
 def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt):
     """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
-    q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2): the window close,
-    the residual and rows, the gated update, the fold and the window test, as Engine.tracker does
-    once the attitude is initialized. An invalid sample (not valid, or too few stars) is only
-    counted, cnt[CNT_INVALID_ST + j] += 1, with cnt[CNT_UPDATED] = −1 (R_DONE); otherwise
-    io[IO_LAST_ST + j] (last valid epoch) ← t_epoch first. Returns R_*."""
-    xp, q, acc_i, omega, U, d, dx = E[_XP], E[_Q], E[_ACC_I], E[_OMEGA], E[_U], E[_D], E[_DX]
+    q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2). An invalid sample
+    (not valid, or too few stars) is only counted, cnt[CNT_INVALID_ST + j] += 1, with
+    cnt[CNT_UPDATED] = −1; otherwise io[IO_LAST_ST + j] (last valid epoch) ← t_epoch, then
+    without an attitude its initialization (steps.init_attitude; CNT_UPDATED 0), else the window
+    close, the residual and rows, the gated update (whitened with the clock's timing term when
+    that is not negligible; the gyro calibration considered while the time line is not locked),
+    the ST<j>_EDITED flag, the fold and the window test. Returns R_DONE or R_ON_WINDOW."""
+    xp, q, omega, U, d, dx = E[_XP], E[_Q], E[_OMEGA], E[_U], E[_D], E[_DX]
     a_w, Hbuf, r3, H_att, H_phi = E[_A_W], E[_HBUF], E[_R3], E[_H_ATT], E[_H_PHI]
     Fbuf, Sbuf, innov, sig = E[_FBUF], E[_SBUF], E[_INNOV], E[_SIG]
     f_w, v_w, k_w, st_sigma, gyro_mask = E[_F_W], E[_V_W], E[_K_W], E[_ST_SIGMA], E[_GYRO_MASK]
     Hwbuf, zwbuf, Lbuf = E[_HWBUF], E[_ZWBUF], E[_LBUF]
     cnt[CNT_UPDATED], cnt[CNT_CONSIDER] = 0, 0
-    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:  # Engine.tracker: counted, nothing else
+    if not valid or n_stars < cfg[CFG_ST_MIN_STARS]:  # counted, nothing else
         cnt[CNT_INVALID_ST + j] += 1
         cnt[CNT_UPDATED] = -1
         return R_DONE
     io[IO_LAST_ST + j] = t_epoch
-    if acc_i[0] > 0 and _close(E, cfg, io, cnt):
-        return R_CLOSE_TAIL
+    if io[IO_ATT_VALID] == 0.0:
+        init_attitude(j, t_epoch, q_meas, n_stars, R_nom, use_phi, E, cfg, io, cnt)
+        return R_DONE
+    close_window(E, cfg, io, cnt)
     phi_col, lat_col = int(cfg[CFG_PHI_COL]), int(cfg[CFG_LAT_COL])
     phi_p, lat_p = int(cfg[CFG_PHI_P]), int(cfg[CFG_LAT_P])
     H = Hbuf[:3]
@@ -259,14 +249,18 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
         rdiag[r] = s * s
     sig_t = io[IO_SIG_T]
     gate, edit = cfg[CFG_GATE_NIS], cfg[CFG_EDIT] != 0.0
-    if sig_t * sig_t * rate2 / rdiag.min() > _TIMING_RATIO:  # Engine._tracker_update's timing term
+    if sig_t * sig_t * rate2 / rdiag.min() > _TIMING_RATIO:  # the clock's timing term
+        # Epoch error δt of the gyro time line → attitude error R ω̂ δt (rank one in tracker
+        # axes): a slowly varying bias while the clock is not locked, so the tracker then keeps
+        # the attitude (and φ2) but does not calibrate the gyros (Schmidt consider)
         Rm = np.empty((3, 3))
         timing_noise(R_nom, omega, rdiag, sig_t, Rm)
         Hw, zw, L = Hwbuf[:3], zwbuf[:3], Lbuf[:3, :3]
-        if decorrelate(H, r3, Rm, Hw, zw, L) != 0:
-            return R_TRACKER_SLOW  # nothing changed yet: Python takes the whole update
+        st = decorrelate(H, r3, Rm, Hw, zw, L)
+        if st != 0:
+            numeric_fault(E, io, cnt, st)
         ones = np.ones(3)
-        if sig_t > cfg[CFG_TIMING_CONSIDER]:  # Schmidt consider on the gyro calibration
+        if sig_t > cfg[CFG_TIMING_CONSIDER]:
             cnt[CNT_CONSIDER] = 1
             status, nis, edited = gated_update_consider(
                 U, d, dx, Hw, zw, ones, gate, edit, gyro_mask, Fbuf[:3], Sbuf[:3, :3], innov[:3],
@@ -282,11 +276,10 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     cnt[CNT_STATUS], cnt[CNT_EDITED], cnt[CNT_UPDATED] = status, 1 if edited else 0, 1
     io[IO_NIS] = nis
     if status != 0:
-        return R_VEC_STATUS
+        numeric_fault(E, io, cnt, status)
     bit = _ST1_EDITED if j == 1 else _ST2_EDITED
     cnt[CNT_FLAGS] = (cnt[CNT_FLAGS] & ~bit) | (bit if edited else 0)
-    if _fold(E) > 0:
-        return R_NUMERIC_FOLD
+    fold(E, io, cnt)
     if io[IO_WAKE_EVERY] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
         return R_ON_WINDOW
     return R_DONE
@@ -295,20 +288,21 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
 @kernel
 def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_parity, s_last1,
-                 s_last2, s_mode, s_flags):
+                 clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1,
+                 s_last2, s_mode, s_flags, s_nis_par):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
     to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). The update results of every tracker event
     go to evo_f (E, 7) (NIS, innovation (3,), σ (3,)) and evo_i (E, 4) (status, edited, updated,
-    consider; updated −1: an invalid sample, only counted in cnt[CNT_INVALID_ST + j])
-    for Python's bookkeeping. Returns (reason, next sample, event, stage): R_DONE with event ==
-    n_ev when everything is done; stage 0 for a reason of the gyro part before event e (or
-    before z when e == n_ev), 1 for a reason of tracker event e itself. g_end ≥ 0: first copy
+    consider; updated −1: an invalid sample, only counted in cnt[CNT_INVALID_ST + j]; 0: no
+    update, e.g. the attitude's initialization) for Python's bookkeeping. Returns (reason, next
+    sample, event, stage): R_DONE with event == n_ev when everything is done; R_ON_WINDOW when
+    the window hook has work, stage 0 after a close of the gyro part before event e (or before z
+    when e == n_ev), 1 after tracker event e itself. g_end ≥ 0: first copy
     samples k..z−1 to the FDI history blocks g_f, g_i, g_b from row g_end
-    (radical_rt.fdi.fdi_history.SampleBuffer, room already made; its owner advances its end), as the
-    reference path's on_gyro hook does before the engine runs. pred (9,): with pred[0] = 1 and
+    (radical_rt.fdi.fdi_history.SampleBuffer, room already made; its owner advances its end).
+    pred (9,): with pred[0] = 1 and
     pred[1] = t_now [s], a release that ends here (R_DONE) also makes the prediction of
     sample-triggered telemetry from its final state (:func:`radical_rt.engine.gyro_queue.predict_pending`
     through the queue's samples z..q_end−1 and the clock's held-back read, clock state
@@ -317,15 +311,10 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
     kernel_args; idle_kernel_args with bk[34][BI_ON] = 0 when none runs here): each tracker event
     the kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
-    takes the decision at the same sample as the reference path.
-    s_t .. s_flags: the engine's scalar state, loaded into io[IO_T..IO_MODE]
-    and cnt[CNT_FLAGS] (cnt[CNT_USED..CNT_MASKED] ← 0, 0,
-    −1, the invalid-sample counts ← 0) first (module docstring; FastRelease._fast_begin)."""
-    io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
-    io[IO_WAKE_T], io[IO_WAKE_E], io[IO_PARITY_OLDEST] = wake_t, wake_e, s_parity
-    io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
-    cnt[CNT_FLAGS], cnt[CNT_USED], cnt[CNT_UNDETERMINED], cnt[CNT_MASKED] = s_flags, 0, 0, -1
-    cnt[CNT_INVALID_ST1], cnt[CNT_INVALID_ST2] = 0, 0
+    takes the decision at that sample.
+    s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`)."""
+    load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
+                 s_mode, s_flags, s_nis_par)
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -360,7 +349,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
             return reason, k, e, 1
         e += 1
     reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt)
-    if reason == R_DONE and pred[0] == 1.0:
+    if reason == R_DONE and pred[0] == 1.0 and io[IO_ATT_VALID] != 0.0:  # else now() does it
         q, omega = E[_Q], E[_OMEGA]
         q_p, omega_p = pred[2:6], pred[6:9]
         for c in range(4):
@@ -371,3 +360,49 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
                                   E[_EXCLUDED], E[_XP], E[_A], E[_GP], q_p, omega_p)
         pred[0] = 2.0
     return reason, k, e, 0
+
+
+@inline_kernel
+def load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
+                 s_mode, s_flags, s_nis_par):
+    """The engine's scalar state into io and cnt at the start of a call (FastRelease._fast_begin;
+    Python reads it back after the call): engine time [s], lock latch [s], σ of the time line
+    [s], wake_t and wake_e [s], attitude valid (0/1), last valid ST1 and ST2 epochs [s], mode
+    code, flags, and the sum of the parity NIS. The per-call counters of cnt (CNT_USED on) ← 0,
+    CNT_MASKED ← −1."""
+    io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
+    io[IO_WAKE_T], io[IO_WAKE_E], io[IO_ATT_VALID] = wake_t, wake_e, s_att
+    io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
+    io[IO_NIS_SUM_PAR] = s_nis_par
+    cnt[CNT_FLAGS], cnt[CNT_FLAGS0] = s_flags, s_flags
+    for i in range(CNT_USED, CNT_END):
+        cnt[i] = 0
+    cnt[CNT_MASKED] = -1
+
+
+EV_BEGIN_ATTITUDE_INIT, EV_NUMERIC, EV_FLUSH, EV_RESET_PARITY = 0, 1, 2, 3  # engine_event codes
+
+
+@kernel
+def engine_event(code, arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_t, s_att,
+                 s_last1, s_last2, s_mode, s_flags, s_nis_par):
+    """One of the engine's steps run for Python (commands, checks, the end of a stream) on the
+    packed state, with the scalar state loaded as for :func:`fast_release`:
+    EV_BEGIN_ATTITUDE_INIT (the attitude is lost; steps.begin_attitude_init), EV_NUMERIC (a
+    numeric fault with code ``arg``; steps.numeric_fault), EV_FLUSH (the end of a stream: the
+    open parity sum queued, every queued sum updated, the correction folded), EV_RESET_PARITY
+    (the open parity sum dropped)."""
+    load_scalars(io, cnt, s_t, s_locked, s_sig_t, math.inf, math.inf, s_att, s_last1, s_last2,
+                 s_mode, s_flags, s_nis_par)
+    E = unpack(fb, ib, bb, lay)
+    if code == EV_BEGIN_ATTITUDE_INIT:
+        begin_attitude_init(E, io, cnt)
+    elif code == EV_NUMERIC:
+        numeric_fault(E, io, cnt, arg)
+    elif code == EV_FLUSH:
+        queue_parity(E, cfg, io, cnt)
+        while E[_PQ_I][1] > 0:
+            pop_parity(E, cfg, io, cnt)
+        fold(E, io, cnt)
+    elif code == EV_RESET_PARITY:
+        reset_parity(E)

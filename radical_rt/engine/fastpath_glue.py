@@ -1,13 +1,12 @@
-"""The engine's shell around its compiled fast path (:mod:`radical_rt.engine.fastpath`).
+"""The engine's shell around its compiled loop (:mod:`radical_rt.engine.fastpath`).
 
 :class:`FastRelease` is the part of :class:`radical_rt.engine.filter.Engine` that hands one whole
-release of the stream processor to :func:`radical_rt.engine.fastpath.fast_release` and does, in Python,
-what the kernel hands back: the bookkeeping of the tracker samples it completed, the reference
-steps from a handover point on (:meth:`_window_done`, :meth:`_tracker_done`), and the loading
-and unloading of the scalar state it reads and writes (:meth:`_fast_begin`, and the end of each
-kernel call in :meth:`release`).
-The reference path itself (``Engine.gyro``, ``Engine.tracker`` and their helpers) stays in
-:mod:`radical_rt.engine.filter`; docs/engine.md §1.1 describes both.
+release of the stream processor to :func:`radical_rt.engine.fastpath.fast_release`, runs the
+window hook where the kernel stops for it, and keeps the bookkeeping the kernel reports: the
+tracker samples it completed (FDI history, diagnostics, counters), the counters of the call, and
+the scalar state it loads and hands back (:meth:`_fast_begin`, :meth:`_fast_end`).
+:meth:`_event` runs one of the engine's compiled steps for Python (commands, checks, the end of a
+stream) on the same state. No filter step is written here.
 """
 
 from __future__ import annotations
@@ -20,41 +19,36 @@ import numpy as np
 from radical_rt.contract.flags import Flag
 from radical_rt.engine import fastpath as fp
 from radical_rt.engine import fastpath_layout as FL
+from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
 ST_KIND = {1: "st1", 2: "st2"}
 ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
-_MODE_CODE = {"converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
-              "degraded": fp.MODE_DEGRADED}  # IO_MODE of radical_rt.engine.fastpath_layout ("init": −1)
+MODE_CODE = {"init": -1.0, "converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
+             "degraded": fp.MODE_DEGRADED}  # IO_MODE of radical_rt.engine.fastpath_layout
+_MODE_NAME = {v: k for k, v in MODE_CODE.items()}
+_NO_SUM = None  # no parity sum waiting for the window hook
 
 
-def _span(arrays, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                            np.ndarray, np.ndarray]:
-    """Samples a..b−1 of gyro arrays (t, dt, dtheta, status, bridged, var_extra), as views."""
-    t, dt, dtheta, status, bridged, var_extra = arrays
-    return t[a:b], dt[a:b], dtheta[a:b], status[a:b], bridged[a:b], var_extra[a:b]
+def numeric_reason(code: int) -> str:
+    """The text of a numeric fault the kernel reported with ``code`` (CNT_NUMERIC_CODE)."""
+    return "sense-axis geometry singular" if code == NUMERIC_GEOMETRY else f"UD kernel status {code}"
 
 
 class FastRelease:
-    """Mixin of :class:`radical_rt.engine.filter.Engine`: :meth:`release` and its fast-path glue."""
+    """Mixin of :class:`radical_rt.engine.filter.Engine`: :meth:`release` and its bookkeeping."""
 
     def release(self, arrays, a: int, z: int, events, predict=None) -> None:
         """One release of the stream processor: for each tracker event (j, t_epoch, q_meas,
         n_stars, valid) in epoch order, the gyro samples up to its epoch, then the sample; then
         the samples up to z. arrays: (t, dt, dtheta, status, bridged, var_extra), samples a..z−1
-        (the stream's :class:`~radical_rt.engine.gyro_queue.GyroQueue`), first given to the FDI's
-        history (:meth:`radical_rt.fdi.monitor.FaultMonitor.on_gyro_rows`, or the kernel's own copy).
-        events: a :class:`radical_rt.stream.tracker_queue.EventBlock` (rows of the stream's tracker
-        queue, which the kernel reads in place). predict: None, or (pred, q_end, clock_I,
-        clock_F) for the kernel's prediction of sample-triggered telemetry at the end of a release
-        it completes (see fast_release; pred[0] = 1 asks for it, 2 says it was made). The same as
-        the reference calls, run by :func:`fastpath.fast_release` while it applies."""
+        (the stream's :class:`~radical_rt.engine.gyro_queue.GyroQueue`), first copied to the FDI's
+        history by the kernel. events: a :class:`radical_rt.stream.tracker_queue.EventBlock` (rows
+        of the stream's tracker queue, which the kernel reads in place). predict: None, or (pred,
+        q_end, clock_I, clock_F) for the kernel's prediction of sample-triggered telemetry at the
+        end of a release it completes (see fast_release; pred[0] = 1 asks for it, 2 says it was
+        made). Runs :meth:`on_window` wherever the kernel stops for the window hook."""
         fdi = self.fdi
-        if not (self.fast and self.att_valid):
-            if fdi is not None and z > a:
-                fdi.on_gyro_rows(arrays, a, z)
-            self._release_ref(arrays, a, z, events)
-            return
         if fdi is not None and z > a:  # the kernel's first call copies a..z−1 to the history
             gbuf = fdi.gbuf
             gbuf.reserve(z - a, self.n_gyro)
@@ -70,9 +64,6 @@ class FastRelease:
         io, cnt, run = self._fast_io, self._fast_cnt, fp.fast_release
         k, e = a, events.start
         while k < z or e < n_ev:
-            if not self.att_valid:
-                self._release_ref(arrays, k, z, events.after(e))
-                return
             bank = None if fdi is None else fdi.kernel_bank()
             if bank is None:
                 bk = self._no_bank
@@ -80,62 +71,28 @@ class FastRelease:
                 hist = fdi.gbuf
                 bk = bank.kernel_args(self, hist, hist.end + (z - a if g_end >= 0 else 0),
                                       n_ev - e, fdi.llr_threshold(self))
+            b = self._fast_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk, *self._fast_begin())
+                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk, b[0], b[1], b[2],
+                b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10])
             if bank is not None:
                 bank.kernel_done()
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
-            # _fast_end: the scalar state back from the io arrays
-            self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
-            self.flags, used = int(cnt[FL.CNT_FLAGS]), int(cnt[FL.CNT_USED])
-            undetermined, masked = int(cnt[FL.CNT_UNDETERMINED]), int(cnt[FL.CNT_MASKED])
-            inv1, inv2 = int(cnt[FL.CNT_INVALID_ST1]), int(cnt[FL.CNT_INVALID_ST2])
-            if inv1:
-                self.counters["st1_invalid"] += inv1
-            if inv2:
-                self.counters["st2_invalid"] += inv2
-            if used:
-                self.counters["siru_used"] += used
-            if undetermined:
-                self.counters["siru_undetermined"] += undetermined
-            if masked >= 0:
-                self.masked = masked != 0
+            self._fast_end()
             if e_stop > e:  # events the kernel completed
                 self._trackers_taken(events, e, e_stop)
             e = e_stop
-            if stage == 1:
-                self._tracker_done(reason, events, e)
+            if stage == 1:  # the hook after tracker event e
+                self._trackers_taken(events, e, e + 1)
+                t_hook = float(ev_f[e, 0])
                 e += 1
-                continue
-            if reason == fp.R_DONE:
-                continue
-            # the reference path to the next event (or to z); the kernel then takes the event
-            seg = z if e >= n_ev else k + int(np.searchsorted(t[k:z], ev_f[e, 0], side="right"))
-            if reason == fp.R_SLOW:  # a gap at sample k
-                self._gyro_body(*_span(arrays, k, seg), 0)
-                k = seg
-            else:
-                self._window_done(reason)
-                if not self.att_valid and k < seg:
-                    self._gyro_resume(*_span(arrays, k, seg))
-                    k = seg
-
-    def _release_ref(self, arrays, a: int, z: int, events) -> None:
-        """The reference path of :meth:`release` (the FDI history already has the samples)."""
-        t = arrays[0]
-        k = a
-        for ev in events:
-            up = k + int(np.searchsorted(t[k:z], ev[1], side="right"))
-            if up > k:
-                self._gyro_body(*_span(arrays, k, up), 0)
-            k = up
-            self.tracker(*ev)
-        if z > k:
-            self._gyro_body(*_span(arrays, k, z), 0)
+                self.on_window(t_hook)
+            elif reason == fp.R_ON_WINDOW:
+                self.on_window(self.t)
 
     # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
@@ -145,11 +102,11 @@ class FastRelease:
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
     def _trackers_taken(self, events, e: int, e_stop: int) -> bool:
-        """The reference path's bookkeeping of the rows e..e_stop−1 of an event block the kernel
-        completed (valid tracker samples; an invalid one it only counted is skipped): last valid epoch, FDI hook and, where the update ran,
-        status check, diagnostics and counters, read from the block's arrays in one pass (no event
-        tuples; the FDI's quaternions and the diagnostics are rows of one copy each). Returns
-        whether the last row's update was used."""
+        """The bookkeeping of the rows e..e_stop−1 of an event block the kernel completed (an
+        invalid sample it only counted is skipped): last valid epoch, FDI history and, where the
+        update ran, diagnostics and counters, read from the block's arrays in one pass (the FDI's
+        quaternions and the diagnostics are rows of one copy each). Returns whether the last
+        row's update was used."""
         f = events.f
         heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
         quats, outs_f = f[e:e_stop, 1:5].copy(), events.out_f[e:e_stop].copy()
@@ -157,7 +114,7 @@ class FastRelease:
         last, fdi = self.last_valid_st, self.fdi
         used = False
         for r, head in enumerate(heads):
-            status, edited, updated, consider = outs_i[r]
+            _status, edited, updated, consider = outs_i[r]
             used = False
             if updated < 0:  # an invalid sample: the kernel counted it, nothing else to do
                 continue
@@ -165,52 +122,96 @@ class FastRelease:
             last[j] = t_epoch
             if fdi is not None:
                 fdi.on_tracker(j, t_epoch, quats[r], head[1])
-            if not updated:
+            if not updated:  # the attitude's initialization (or ST2 waiting for ST1)
                 continue
             kind = ST_KIND[j]
             if consider:
                 self.counters[kind + "_consider"] += 1
-            if status:
-                self._check(status)
             out_f = outs_f[r]
             used = self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
         return used
 
-    def _window_done(self, reason: int) -> None:
-        """Python's share of a window close the gyro fast path handed over."""
-        if reason == fp.R_CLOSE_TAIL:
-            self._check(int(self._fast_cnt[FL.CNT_STATUS]))
-            self._close_tail()
-            self._apply_correction()
-        elif reason == fp.R_NUMERIC_FOLD:
-            self._numeric("sense-axis geometry singular")
-        self.on_window(self.t)
-
-    # ---------------------------------------------------------------- fast-path glue
-    fast = True  # use radical_rt.engine.fastpath (the dense reference of perf/ turns it off)
-
+    # ---------------------------------------------------------------- kernel state
     def _fast_begin(self) -> tuple:
-        """The scalar state the fast path loads into its io arrays at the start of a call (the
-        last ten arguments of :func:`fastpath.fast_release`; :meth:`release` takes it back after
-        each call): t, locked_since, σ of the time line, wake_t, wake_e, epoch of the oldest
-        queued parity sum, last valid epochs of ST1 and ST2, mode code, flags. It also sets
-        IO_WAKE_EVERY (the window hook after every tracker sample) from the FDI (a bank that the kernel
-        cannot run itself)."""
-        last, pq, fdi, src = self.last_valid_st, self.parity_queue, self.fdi, self.wake_source
+        """The scalar state the kernel loads into its io arrays at the start of a call (the last
+        eleven arguments of :func:`fastpath.fast_release`; :meth:`_fast_end` takes it back): t,
+        locked_since, σ of the time line, wake_t, wake_e, attitude valid, last valid epochs of
+        ST1 and ST2, mode code, flags, sum of the parity NIS. It also sets the configuration
+        that follows the collaborators: IO_WAKE_EVERY (the window hook after every tracker sample,
+        for a bank the kernel cannot run), CFG_FDI_ON and CFG_HOOK_SUM."""
+        last, fdi, src = self.last_valid_st, self.fdi, self.wake_source
         wake_e = math.inf if fdi is None else fdi.wake_time()
-        # the FDI's bank wants the window hook after every tracker sample
         self._fast_io[FL.IO_WAKE_EVERY] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
+        cfg = self._fast_cfg
+        cfg[FL.CFG_FDI_ON] = 1.0 if fdi is not None and fdi.enabled(self) else 0.0
+        cfg[FL.CFG_HOOK_SUM] = 1.0 if fdi is not None or self.excitation is not None else 0.0
         if src is None:
             wake_t = math.inf
         else:  # the listener's (the stream's packets and flags)
             wake_t, e = src()
             wake_e = min(wake_e, e)
         return (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
-                pq[0][0] if pq else math.inf, last.get(1, -math.inf), last.get(2, -math.inf),
-                _MODE_CODE.get(self.mode, -1.0), int(self.flags))
+                1.0 if self.att_valid else 0.0, last.get(1, -math.inf), last.get(2, -math.inf),
+                MODE_CODE[self.mode], int(self.flags), self.nis_sum.get("parity", 0.0))
+
+    def _fast_end(self) -> None:
+        """The scalar state and the counters of a call back from the io arrays."""
+        io, cnt = self._fast_io, self._fast_cnt
+        self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
+        self.att_valid = io[FL.IO_ATT_VALID] != 0.0
+        self.mode = _MODE_NAME[float(io[FL.IO_MODE])]
+        c = cnt.tolist()
+        self.flags = c[FL.CNT_FLAGS]
+        counters = self.counters
+        for name, i in self._COUNTED:
+            if c[i]:
+                counters[name] += c[i]
+        if c[FL.CNT_MASKED] >= 0:
+            self.masked = c[FL.CNT_MASKED] != 0
+        if c[FL.CNT_GAPS]:
+            counters["warm_starts"] += c[FL.CNT_GAPS]
+        if c[FL.CNT_RESETS] and self.excitation is not None:
+            self.excitation.clear()
+        if c[FL.CNT_NUMERIC]:
+            self.last_numeric = numeric_reason(c[FL.CNT_NUMERIC_CODE])
+        if c[FL.CNT_PAR_USED] or c[FL.CNT_PAR_EDITED]:
+            self._parity_done(c[FL.CNT_PAR_USED], float(io[FL.IO_NIS_SUM_PAR]))
+        if c[FL.CNT_PAR_SUMS]:
+            self._sum_pending = ((float(io[FL.IO_PAR_NU]), float(io[FL.IO_PAR_RHO]),
+                                  float(io[FL.IO_PAR_T0]), float(io[FL.IO_PAR_Z]))
+                                 if c[FL.CNT_PAR_STAT] else ())
+
+    #: (counter, CNT field) added after every call
+    _COUNTED = (("siru_used", FL.CNT_USED), ("siru_undetermined", FL.CNT_UNDETERMINED),
+                ("st1_invalid", FL.CNT_INVALID_ST1), ("st2_invalid", FL.CNT_INVALID_ST2),
+                ("siru_pre_init", FL.CNT_PRE_INIT), ("gyro_gaps", FL.CNT_GAPS),
+                ("att_inits", FL.CNT_ATT_INITS), ("numeric_faults", FL.CNT_NUMERIC),
+                ("parity_used", FL.CNT_PAR_USED), ("parity_edited", FL.CNT_PAR_EDITED),
+                ("parity_early", FL.CNT_PAR_EARLY))
+
+    _sum_pending = _NO_SUM  # the FDI statistic of a parity sum queued since the last hook
+
+    def _parity_done(self, used: int, nis_sum: float) -> None:
+        """Diagnostics of the parity updates of a call: the last one's innovation, σ and NIS,
+        the running NIS sum, and the NIS of the used ones while the time line was locked."""
+        self.diag_last["parity"] = (self.par_innov.copy(), self.par_sig.copy(),
+                                    float(self._fast_io[FL.IO_PAR_NIS]))
+        if used:
+            if self.locked_now():
+                self.nis_locked["parity"][0] += used
+                self.nis_locked["parity"][1] += nis_sum - self.nis_sum.get("parity", 0.0)
+            self.nis_sum["parity"] = nis_sum
+
+    def _event(self, code: int, arg: int = 0) -> None:
+        """Run :func:`fastpath.engine_event` ``code`` on the engine's state (EV_*)."""
+        b = self._fast_begin()
+        fp.engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._fast_cfg,
+                        self._fast_io, self._fast_cnt, b[0], b[1], b[2], b[5], b[6], b[7],
+                        b[8], b[9], b[10])
+        self._fast_end()
 
     def _fast_config(self) -> None:
-        """Scalar parameters and io arrays of the fast path (after every parameter change)."""
+        """Scalar parameters and io arrays of the kernel (after every parameter change)."""
         si = self.si
         self._fast_cfg = FL.CFG.pack({
             "prop_window": si.prop_window, "arw_var": si.arw_var_per_s, "quant_var": si.quant_var,
@@ -220,7 +221,9 @@ class FastRelease:
             "n_gyro": self.n_gyro, "st_ref_stars": si.st_ref_stars,
             "gate_nis": si.gate_st_nis, "edit": 1.0 if si.edit_enabled else 0.0,
             "phi_col": self._phi_col, "lat_col": self._lat_col, "phi_p": self._phi_col - 3,
-            "lat_p": self._lat_col - 3, "st_min_stars": si.st_min_stars})
+            "lat_p": self._lat_col - 3, "st_min_stars": si.st_min_stars,
+            "gate_parity": si.gate_parity_nis, "att_init_scale": si.att_init_scale,
+            "fdi_on": 0.0, "hook_sum": 0.0})
         self._fast_io = np.zeros(FL.IO.end)
         self._fast_cnt = np.zeros(FL.CNT.end, np.int64)
 
@@ -228,23 +231,3 @@ class FastRelease:
     # the engine time from which on_window has work although the flags stay the same (−inf: at
     # once); _fast_begin combines it with the FDI's wake_time()
     wake_source: Callable[[], tuple[float, float]] | None = None
-
-    def _tracker_done(self, reason: int, events, e: int) -> None:
-        """Row e of the event block, at which :func:`radical_rt.engine.fastpath.fast_release` handed
-        over: the bookkeeping of what the kernel did, then the reference steps from there."""
-        ev = events.event(e)
-        used = self._trackers_taken(events, e, e + 1)
-        j, t_epoch, q_meas, n_stars, _valid = ev
-        if reason == fp.R_CLOSE_TAIL or reason == fp.R_TRACKER_SLOW:
-            if reason == fp.R_CLOSE_TAIL:
-                self._check(int(events.out_i[e, 0]))
-                self._close_tail()
-            self._tracker_update(j, t_epoch, q_meas, n_stars)
-            self._apply_correction()
-        elif reason == fp.R_VEC_STATUS:
-            bit = ST_EDITED_BIT[j]
-            self.flags = (self.flags & ~bit) | (0 if used else bit)
-            self._apply_correction()
-        elif reason == fp.R_NUMERIC_FOLD:
-            self._numeric("sense-axis geometry singular")
-        self.on_window(t_epoch)

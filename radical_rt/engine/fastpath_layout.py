@@ -31,6 +31,11 @@ CFG_LAT_COL = CFG.add("lat_col", doc="state column of the tracker latency tau (-
 CFG_PHI_P = CFG.add("phi_p", doc="index of phi2 in xp")
 CFG_LAT_P = CFG.add("lat_p", doc="index of tau in xp")
 CFG_ST_MIN_STARS = CFG.add("st_min_stars", doc="fewer stars: the sample is not used")
+CFG_GATE_PARITY = CFG.add("gate_parity", doc="chi-square gate of a parity update")
+CFG_ATT_INIT_SCALE = CFG.add("att_init_scale", doc="initial attitude sigma / tracker sigma")
+CFG_FDI_ON = CFG.add("fdi_on", doc="1: the FDI statistic of every queued parity sum is computed")
+CFG_HOOK_SUM = CFG.add("hook_sum",
+                       doc="1: the window hook has work after every close that queued a sum")
 CFG.freeze()
 
 IO = Fields("fastpath.io", "float64")
@@ -39,12 +44,17 @@ IO_LOCKED_SINCE = IO.add("locked_since", unit="s", doc="lock latch (in/out; inf:
 IO_SIG_T = IO.add("sig_t", unit="s", doc="sigma of the time line")
 IO_WAKE_T = IO.add("wake_t", unit="s", doc="event time from which the window hook has work")
 IO_WAKE_E = IO.add("wake_e", unit="s", doc="engine time from which the window hook has work")
-IO_PARITY_OLDEST = IO.add("parity_oldest", unit="s",
-                          doc="epoch of the oldest queued parity sum (inf: none)")
 IO_LAST_ST1 = IO.add("last_st1", unit="s", doc="last valid ST1 epoch (-inf: none)")
 IO_LAST_ST2 = IO.add("last_st2", unit="s", doc="last valid ST2 epoch (-inf: none)")
 IO_MODE = IO.add("mode", doc="the engine's mode code (MODE_*; -1: init)")
 IO_NIS = IO.add("nis", doc="NIS of the tracker update (out)")
+IO_ATT_VALID = IO.add("att_valid", doc="1: the attitude is initialized (in/out)")
+IO_PAR_NU = IO.add("par_nu", doc="FDI: normalized innovation of the last queued sum (out)")
+IO_PAR_RHO = IO.add("par_rho", doc="FDI: innovation variance / measurement noise (out)")
+IO_PAR_T0 = IO.add("par_t0", unit="s", doc="FDI: first sample of the last queued sum (out)")
+IO_PAR_Z = IO.add("par_z", unit="rad", doc="FDI: innovation of the last queued sum (out)")
+IO_PAR_NIS = IO.add("par_nis", doc="NIS of the last parity update (out)")
+IO_NIS_SUM_PAR = IO.add("nis_sum_par", doc="sum of the NIS of the used parity updates (in/out)")
 IO_WAKE_EVERY = IO.add("wake_every",
                        doc="1: the window hook has work after every tracker sample (caller)")
 IO.freeze()
@@ -52,6 +62,7 @@ IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
 
 CNT = Fields("fastpath.cnt", "int64")
 CNT_FLAGS = CNT.add("flags", doc="the engine's flags (in/out)")
+CNT_FLAGS0 = CNT.add("flags0", doc="the engine's flags at the start of the call")
 CNT_USED = CNT.add("used", doc="samples propagated (+=)")
 CNT_UNDETERMINED = CNT.add("undetermined", doc="undetermined windows (+=)")
 CNT_MASKED = CNT.add("masked", doc="PROP_MASKED of the last propagate call (caller sets -1)")
@@ -61,5 +72,18 @@ CNT_UPDATED = CNT.add("updated", doc="1: a tracker update ran (out)")
 CNT_CONSIDER = CNT.add("consider", doc="1: the gyro calibration was a consider state (out)")
 CNT_INVALID_ST1 = CNT.add("invalid_st1", doc="invalid ST1 samples skipped (+=)")
 CNT_INVALID_ST2 = CNT.add("invalid_st2", doc="invalid ST2 samples skipped (+=)")
+CNT_PRE_INIT = CNT.add("pre_init", doc="gyro samples before the attitude is initialized (+=)")
+CNT_GAPS = CNT.add("gaps", doc="gyro gaps (warm starts without bump) (+=)")
+CNT_ATT_INITS = CNT.add("att_inits", doc="attitude initializations from a tracker (+=)")
+CNT_RESETS = CNT.add("resets", doc="attitude resets (begin_attitude_init) (+=)")
+CNT_NUMERIC = CNT.add("numeric", doc="numeric faults (+=)")
+CNT_NUMERIC_CODE = CNT.add("numeric_code",
+                           doc="last numeric fault: UD status code, -1 geometry singular (out)")
+CNT_PAR_USED = CNT.add("par_used", doc="parity updates used (+=)")
+CNT_PAR_EDITED = CNT.add("par_edited", doc="parity updates edited (+=)")
+CNT_PAR_SUMS = CNT.add("par_sums", doc="parity sums queued (+=)")
+CNT_PAR_STAT = CNT.add("par_stat", doc="1: the FDI statistic of the last queued sum is valid")
+CNT_PAR_EARLY = CNT.add("par_early", doc="queued sums updated early, the queue being full (+=)")
 CNT.freeze()
+CNT_END = CNT.end  # the per-call counters are CNT_USED..CNT_END−1
 CNT_INVALID_ST = CNT_INVALID_ST1 - 1  # CNT_INVALID_ST + j: tracker j

@@ -52,7 +52,6 @@ from radical_rt.fdi.fdi_detect import (
 from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import parity_from_stats
 
 # Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
 SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
@@ -106,7 +105,6 @@ class FaultMonitor:
         self.alarms: list[dict[str, Any]] = []  # every alarm raised (time, test, onset estimate)
         self.isolations: list[dict[str, Any]] = []  # every isolation decision
         self.parity_log: deque = deque()  # (t0, z) of recent sums, for the fault-size estimate
-        self._z = self._H = self._th = self._Phi = self._h = None  # parity work arrays
         self._next_check = -math.inf
         self._sum_seen = False  # a parity sum closed since the last bookkeeping
         self._t_decided = -math.inf  # engine time of the running bank's last decision
@@ -155,31 +153,19 @@ class FaultMonitor:
         self.trk_seq += 1
         self.trk.append((self.trk_seq, t_epoch, j, q_meas, n_stars))
 
-    def on_parity_sum(self, eng, par_y, par_t, noise: float) -> None:
-        """Every closed parity sum (before it waits for its lagged update): the calibrated
-        innovation z = Nᵀĉ − h·dx with the current estimate, and σ² = h P hᵀ + R from the UD
-        factors (all states, considered ones included). The next window close runs the
-        bookkeeping (:meth:`on_window`)."""
+    def on_parity_sum(self, eng, stat: tuple) -> None:
+        """Every closed parity sum, at the window hook of its close: its statistic ``stat`` =
+        (ν, ρ, t0, z), computed by the engine's compiled close when the sum was queued
+        (radical_rt.engine.steps.parity_statistic: the calibrated innovation z = Nᵀĉ − h·dx with
+        the estimate of that time, σ² = h P hᵀ + R from the UD factors, ν = z/σ, ρ = σ²/R, t0 the
+        sum's first sample [s]), or () when it was not computed (FDI disabled, not finite). Runs
+        the detector; the bookkeeping follows in :meth:`on_window`."""
         self._sum_seen = True
-        if not self.enabled(eng):
+        if not stat or not self.enabled(eng):
             return
-        n, ns = eng.n_gyro, eng.ns
-        if self._z is None or self._H.shape[1] != ns - 3:
-            self._z, self._H = np.zeros(1), np.zeros((1, ns - 3))
-            self._th, self._Phi, self._h = np.zeros(3), np.zeros((3, 5 * n)), np.zeros(ns)
-        parity_from_stats(par_y, par_t, eng.xp, eng.A, eng.Gp, eng.N, eng.geo.W, eng.geo.U,
-                          eng.geo.V, self._z, self._H, self._th, self._Phi)
-        h = self._h
-        h[3:] = self._H[0]
-        f = eng.U.T @ h
-        s2 = float(eng.d @ (f * f)) + noise
-        z = float(self._z[0] - h @ eng.dx)
-        if not (s2 > 0.0 and noise > 0.0 and math.isfinite(z)):
-            return
+        nu, rho, t0, z = stat
         det = self.detector(eng)
-        nu, rho = z / math.sqrt(s2), s2 / noise
         t1 = float(eng.t)
-        t0 = t1 - float(eng.acc_f[2])  # the sum's first sample (duration of the sum)
         self.counts["sums"] += 1
         self.last_nu, self.last_rho = nu, rho
         self.parity_log.append((t0, z))

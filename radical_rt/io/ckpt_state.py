@@ -288,8 +288,7 @@ def apply(sp: StreamProcessor, plan: Plan) -> None:
     e.nis_sum.clear()
     e.nis_sum.update(s["nis_sum"])
     e.last_valid_st = dict(s["last_valid_st"])
-    e.parity_queue.clear()
-    e.parity_queue.extend(plan.parity_queue)
+    e.set_parity_queue(plan.parity_queue)
     e.dx[:] = 0.0
     e.state_restored()
     sp.clock.set_state(plan.clock)

@@ -450,7 +450,7 @@ class StreamProcessor(StreamGuards):
         return {"v": 1, "stream": self.streams.index, "stream_info": self.streams.info(),
                 "t": e.t, "flags": field("flags"), "mode": e.mode,
                 "residuals": field("residuals"), "counters": field("counters"),
-                "engine_counters": dict(e.counters), "rejected": dict(self.rejected),
+                "engine_counters": dict(sorted(e.counters.items())), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),
                 "latency": field("latency"), "fdi": field("fdi"),
                 "ud": {"d_min": float(e.d.min()), "d_max": float(e.d.max())},

@@ -55,6 +55,7 @@ from radical_rt.engine.filter import Engine
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import contract_from_internal
 from radical_rt.kernels.timeupdate import ACC_NOISE_T, NOISE_PERIOD_S
+from tests.oracles.reference_engine import ReferenceEngine
 
 # ------------------------------------------------------------------------------------- kernels
 
@@ -190,10 +191,9 @@ def dense_gated_update(P, dx, H, z, rdiag, gate, edit_enabled, consider, S, inno
 # -------------------------------------------------------------------------------------- engine
 
 
-class DenseEngine(Engine):
-    """:class:`Engine` with the covariance kept dense (see the module docstring)."""
-
-    fast = False  # the compiled fast path works on the UD factors: the reference path only
+class DenseEngine(ReferenceEngine):
+    """The Python event loop of :class:`ReferenceEngine` with the covariance kept dense (see the
+    module docstring)."""
 
     def __init__(self, table=None, geometry=None) -> None:
         self.P = np.zeros((0, 0))  # allocated by the first cold start (_from_ud)
