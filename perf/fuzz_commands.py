@@ -58,7 +58,7 @@ class CommandRig:
 
     def __init__(self, msgs: list[tuple[str, bytes]], ckdir: Path, feed: int) -> None:
         from radical_rt.apps.node import FilterNode, build_processors
-        from radical_rt.io.transport import InMemoryBus, InMemoryTransport
+        from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
         self.msgs, self.feed_n, self.pos = msgs, feed, 0
         self.bus = InMemoryBus(threaded=False)
         self.node = FilterNode(InMemoryTransport(self.bus), build_processors(["v1"]),

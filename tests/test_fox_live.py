@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from radical_rt.apps.node import FilterNode, build_processors
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from support.node import input_messages, make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh

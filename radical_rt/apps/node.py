@@ -50,7 +50,8 @@ from radical_rt.apps.node_clock import ClockNotice
 from radical_rt.apps.node_timing import LoopTiming
 from radical_rt.contract.params import ParamTable
 from radical_rt.io import checkpoint as ckpt
-from radical_rt.io.transport import Inbox, Transport, ZenohTransport
+from radical_rt.io.transport import Inbox, Transport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from radical_rt.stream.eos import EOS_TOPIC, decode_eos
 from radical_rt.stream.packets import InputError
 from radical_rt.stream.processor import INPUT_TOPICS, StreamProcessor

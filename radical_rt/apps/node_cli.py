@@ -149,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
     )
     from radical_rt.contract.params import ParamError
     from radical_rt.io.checkpoint import CheckpointError
-    from radical_rt.io.transport import TransportError, ZenohTransport
+    from radical_rt.io.transport import TransportError
+    from radical_rt.io.zenoh_transport import ZenohTransport
     from radical_rt.stream.telemetry import PacketError
 
     try:
