@@ -274,7 +274,8 @@ def sample_times(stream: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     bit-identical times) over the stream's SIRU messages offline; bridged samples (never read)
     are skipped.
     """
-    from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+    from radical_rt.clock.clock_config import ClockConfig
+    from radical_rt.clock.siru_clock import SiruClock
     from radical_rt.stream.packets import decode_siru
 
     clock = SiruClock(ClockConfig(), n_gyro=4)
