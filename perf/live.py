@@ -7,7 +7,7 @@ Each measurement runs real processes on loopback Zenoh:
   CLOCK_MONOTONIC, the instant just before every ``put`` and the arrival of every ``tlm/*``
   packet. It is at once the replayer and the ground station;
 * ``radical node`` connecting to it, with ``--timing-out`` so that its filter loop records the
-  taken/fed/published instants of every message (:class:`radical_rt.apps.node.LoopTiming`);
+  taken/fed/published instants of every message (:class:`radical_rt.apps.node_timing.LoopTiming`);
 * for the reference, a **ping** and a **pong** process (``python -m perf.live ping|pong``)
   bouncing 96-byte msgpack messages at 100 Hz.
 
@@ -508,7 +508,7 @@ def role_memory(a: argparse.Namespace) -> int:
     """RSS after 0, 1, 2, 4, … vehicles in ONE process: warm-up (kernels loaded) first, then each
     new vehicle is built as the node builds it and fed the stream (as fast as possible), so its
     buffers, clock and packet state are those of a running vehicle. Writes JSON to ``--out``."""
-    from radical_rt.apps.node import build_processors, warm_up
+    from radical_rt.apps.node_setup import build_processors, warm_up
 
     stream = load_stream(a.stream)
     warm_up()

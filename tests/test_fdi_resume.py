@@ -14,7 +14,7 @@ import pytest
 
 from perf.fdi_table import fault_toml, synth
 from radical_rt.apps.batch import make_processor
-from radical_rt.apps.node import build_processors
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
 from support.node import input_messages
 

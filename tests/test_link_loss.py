@@ -13,7 +13,8 @@ import time
 import msgpack
 import pytest
 
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.contract.flags import Flag
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from perf import bench_capacity, bench_latency, bench_startup, live
-from radical_rt.apps.node import LoopTiming
+from radical_rt.apps.node_timing import LoopTiming
 from support.node import MemNode
 
 

@@ -1,6 +1,6 @@
-"""The in-memory transport: :class:`InMemoryTransport` instances that share an :class:`InMemoryBus`
-exchange samples, queries and liveliness tokens in one process, with Zenoh's semantics and no network
-(the protocol: :mod:`radical_rt.io.transport`).
+"""The in-memory transport: :class:`InMemoryTransport` instances that share an
+:class:`InMemoryBus` exchange samples, queries and liveliness tokens in one process, with Zenoh's
+semantics and no network (the protocol: :mod:`radical_rt.io.transport`).
 
 A bus is synchronous (callbacks run in the publisher's thread) or threaded (one delivery thread per
 subscriber / queryable, in order, like the Zenoh Python binding). :class:`MemInbox` is the bounded
