@@ -10,8 +10,8 @@ import pytest
 pytest.importorskip("matplotlib")
 
 from monitors.report_data import ArchiveData  # noqa: E402
-from monitors.report_tables import table_markdown  # noqa: E402
 from monitors.report_ops import attitude_error, common_axis, load_ops, split_streams  # noqa: E402
+from monitors.report_tables import table_markdown  # noqa: E402
 from radical_rt.apps.batch import process  # noqa: E402
 from radical_rt.apps.cli import main  # noqa: E402
 from replayer.synth.api import synthesize  # noqa: E402
