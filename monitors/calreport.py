@@ -184,7 +184,7 @@ def write_calibration_report(out: Path, data: list[Any], tables_md: dict[str, st
                              figures: list[tuple[str, str]]) -> Path:
     """Write ``out/calibration_report.html`` from loaded archives, the table Markdown and the
     figure files already written in ``out``; returns its path."""
-    from monitors.report import md_table_to_html
+    from monitors.report_html import md_table_to_html
 
     h = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
          "<title>RADICAL-RT calibration report</title>", f"<style>{_CSS}</style></head><body>",

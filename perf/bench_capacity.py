@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from perf import live
+from perf import live, live_analysis, live_host, live_stream
 
 PROFILES: dict[str, dict[str, Any]] = {
     "smoke": dict(steps=(1, 2), warmup_s=2.0, measure_s=4.0, search=False, memory=(1, 2, 4)),
@@ -53,7 +53,7 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
 def default_config() -> str:
-    return "sample" if live.trigger_supported() else "window"
+    return "sample" if live_stream.trigger_supported() else "window"
 
 
 def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: str | None = None,
@@ -64,22 +64,22 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}; use one of {', '.join(PROFILES)}")
     prof = PROFILES[profile]
-    cpus = live.default_cpus() if cpus is None else cpus
+    cpus = live_host.default_cpus() if cpus is None else cpus
     config = config or default_config()
     steps = tuple(steps or prof["steps"])
     t_start = time.perf_counter()
     res: dict[str, Any] = {"schema": "radical.bench.capacity/1", "profile": profile,
-                           "machine": live.machine_info(), "cpus": cpus, "config": config,
+                           "machine": live_host.machine_info(), "cpus": cpus, "config": config,
                            "warmup_s": prof["warmup_s"], "measure_s": prof["measure_s"],
                            "aligned": aligned, "rt_priority": rt_priority,
-                           "deadline_ms": live.DEADLINE_NS / 1e6,
+                           "deadline_ms": live_analysis.DEADLINE_NS / 1e6,
                            "max_miss_frac": MAX_MISS_FRAC, "steps": {}}
     with tempfile.TemporaryDirectory(prefix="radical-capacity-") as tmp:
         work = Path(tmp)
         stream_path = work / "stream.mpk"
-        stream = live.build_stream(prof["warmup_s"] + prof["measure_s"] + TAIL_S, stream_path)
-        samples = live.sample_times(stream)
-        packets = live.packet_file(config, work)
+        stream = live_stream.build_stream(prof["warmup_s"] + prof["measure_s"] + TAIL_S, stream_path)
+        samples = live_stream.sample_times(stream)
+        packets = live_stream.packet_file(config, work)
         res["packets_toml"] = Path(packets).read_text() if packets else None
         res["memory"] = live.memory_run(stream_path, list(prof["memory"]), packets, cpus, work,
                                         growth_s=prof.get("growth_s"))
@@ -88,7 +88,7 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
             run_ = live.node_session(
                 stream_path, n, packets, cpus, work, tag=f"n{n}", aligned=aligned,
                 node_args=["--rt-priority", str(rt_priority)] if rt_priority else None)
-            r = live.analyse(run_, stream, prof["warmup_s"], prof["measure_s"], samples)
+            r = live_analysis.analyse(run_, stream, prof["warmup_s"], prof["measure_s"], samples)
             r["timing_mb"] = _timing_mb(run_, prof["warmup_s"])
             r["rss_net_mb"] = (r["rss_at_warmup_end_mb"] - r["timing_mb"]
                                if r.get("rss_at_warmup_end_mb") is not None else None)

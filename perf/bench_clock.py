@@ -41,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+from radical_rt.clock.clock_config import ClockConfig
+from radical_rt.clock.siru_clock import SiruClock
 
 PROFILES = {"smoke": ((-100.0, 100.0), 300.0), "quick": ((-100.0, -30.0, 30.0, 100.0), 600.0),
             "full": ((-100.0, -30.0, 30.0, 100.0), 3600.0)}

@@ -161,7 +161,7 @@ def _process_wall(path: Path, out: Path) -> float:
 def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, Any]:
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r} (one of {sorted(PROFILES)})")
-    from perf.fdi_table import fault_toml, synth
+    from perf.fdi_cases import fault_toml, synth
     from radical_rt.fdi.fdi_hypotheses import HypothesisBank
     fault, duration, reps = PROFILES[profile]
     banks = _bank_types()

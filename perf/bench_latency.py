@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from perf import live
+from perf import live, live_analysis, live_host, live_stream
 
 PROFILES: dict[str, dict[str, Any]] = {
     "smoke": dict(warmup_s=2.0, measure_s=5.0, rtt_n=300),
@@ -68,31 +68,31 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *,
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}; use one of {', '.join(PROFILES)}")
     prof = PROFILES[profile]
-    cpus = live.default_cpus() if cpus is None else cpus
+    cpus = live_host.default_cpus() if cpus is None else cpus
     t_start = time.perf_counter()
     res: dict[str, Any] = {"schema": "radical.bench.latency/1", "profile": profile,
-                           "machine": live.machine_info(), "cpus": cpus, "vehicles": vehicles,
+                           "machine": live_host.machine_info(), "cpus": cpus, "vehicles": vehicles,
                            "batch": batch, "rate": 1.0, "aligned": aligned,
-                           "deadline_ms": live.DEADLINE_NS / 1e6, **prof, "configs": {}}
+                           "deadline_ms": live_analysis.DEADLINE_NS / 1e6, **prof, "configs": {}}
     with tempfile.TemporaryDirectory(prefix="radical-latency-") as tmp:
         work = Path(tmp)
         stream_path = work / "stream.mpk"
-        stream = live.build_stream(prof["warmup_s"] + prof["measure_s"] + TAIL_S, stream_path,
+        stream = live_stream.build_stream(prof["warmup_s"] + prof["measure_s"] + TAIL_S, stream_path,
                                    batch=batch)
-        samples = live.sample_times(stream)
+        samples = live_stream.sample_times(stream)
         res["stream"] = {"messages": len(stream["topics"]), "siru_samples": int(samples[0].size),
                          "scenario": stream["scenario"], "seed": stream["seed"]}
         res["zenoh_rtt"] = live.rtt_run(prof["rtt_n"], 100.0, cpus, work)
         for cfg in configs:
             name = Path(cfg).stem if cfg not in ("window", "sample", "default") else cfg
             try:
-                packets = live.packet_file(cfg, work)
-            except live.LiveError as exc:
+                packets = live_stream.packet_file(cfg, work)
+            except live_host.LiveError as exc:
                 res["configs"][name] = {"available": False, "reason": str(exc)}
                 continue
             run_ = live.node_session(stream_path, vehicles, packets, cpus, work, tag=name,
                                      aligned=aligned)
-            r = live.analyse(run_, stream, prof["warmup_s"], prof["measure_s"], samples)
+            r = live_analysis.analyse(run_, stream, prof["warmup_s"], prof["measure_s"], samples)
             r["available"] = True
             r["packets_toml"] = Path(packets).read_text() if packets else None
             res["configs"][name] = r

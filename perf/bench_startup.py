@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from perf import live
+from perf import live, live_host, live_stream
 
 PROFILES: dict[str, dict[str, Any]] = {
     "smoke": dict(cold=False, cached_runs=1),
@@ -65,16 +65,16 @@ def run(profile: str = "quick", out_dir: str | Path | None = None, *, config: st
         raise ValueError(f"unknown profile {profile!r}; use one of {', '.join(PROFILES)}")
     prof = PROFILES[profile]
     cold = prof["cold"] if cold is None else cold
-    cpus = live.default_cpus() if cpus is None else cpus
+    cpus = live_host.default_cpus() if cpus is None else cpus
     t_start = time.perf_counter()
     res: dict[str, Any] = {"schema": "radical.bench.startup/1", "profile": profile,
-                           "machine": live.machine_info(), "cpus": cpus, "config": config,
+                           "machine": live_host.machine_info(), "cpus": cpus, "config": config,
                            "small_trigger": _small_trigger(), "cold": None, "cached": []}
     with tempfile.TemporaryDirectory(prefix="radical-startup-") as tmp:
         work = Path(tmp)
         stream_path = work / "stream.mpk"
-        live.build_stream(6.0, stream_path)
-        packets = live.packet_file(config, work)
+        live_stream.build_stream(6.0, stream_path)
+        packets = live_stream.packet_file(config, work)
         cache: Path | None = None
         if cold:
             cache = work / "numba-cache"

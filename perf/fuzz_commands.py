@@ -57,8 +57,9 @@ class CommandRig:
     """An in-memory node fed the stream, commands sent through its queryable."""
 
     def __init__(self, msgs: list[tuple[str, bytes]], ckdir: Path, feed: int) -> None:
-        from radical_rt.apps.node import FilterNode, build_processors
-        from radical_rt.io.transport import InMemoryBus, InMemoryTransport
+        from radical_rt.apps.node import FilterNode
+        from radical_rt.apps.node_setup import build_processors
+        from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
         self.msgs, self.feed_n, self.pos = msgs, feed, 0
         self.bus = InMemoryBus(threaded=False)
         self.node = FilterNode(InMemoryTransport(self.bus), build_processors(["v1"]),

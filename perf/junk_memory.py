@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", metavar="OUT.json")
     a = ap.parse_args(argv)
     from radical_rt.io import zconfig
-    from radical_rt.io.transport import ZenohTransport
+    from radical_rt.io.zenoh_transport import ZenohTransport
 
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
     log = open(os.devnull, "w")

@@ -24,7 +24,8 @@ import msgpack
 import numpy as np
 
 from perf.bench_clock import match_truth, read_archive
-from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+from radical_rt.clock.clock_config import ClockConfig
+from radical_rt.clock.siru_clock import SiruClock
 from radical_rt.contract.flags import Flag
 from replayer.archive import ArchiveReader
 

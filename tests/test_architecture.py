@@ -20,10 +20,6 @@ PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
 KNOWN = {
     ("radical_rt/clock/siru_clock.py", "fresh._F"),  # the same class
     ("radical_rt/clock/siru_clock.py", "fresh._I"),  # the same class
-    ("radical_rt/io/transport.py", "box._decl"),
-    ("radical_rt/io/transport.py", "self.bus._add"),
-    ("radical_rt/io/transport.py", "self.bus._find"),
-    ("radical_rt/io/transport.py", "self.bus._remove"),
     ("replayer/archive.py", "r._header"),  # the same class
     ("replayer/archive.py", "r._reader"),  # the same class
     ("replayer/archive.py", "r._summary"),  # the same class

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from radical_rt.apps.batch import make_processor
-from radical_rt.apps.node import build_processors
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.clock import clock_layout as L
 from radical_rt.io import checkpoint as ckpt
 from support.node import MemNode, feed_archive, input_messages
@@ -137,7 +137,8 @@ def test_clock_int_array_at_int64_max_is_refused(good_ckpt, tmp_path):
     code = textwrap.dedent(f"""
         import sys, msgpack
         from radical_rt.io.checkpoint import CheckpointError
-        from radical_rt.apps.node import build_processors, packb
+        from radical_rt.apps.node_setup import build_processors
+        from radical_rt.apps.node_vehicle import packb
         try:
             sp = build_processors(["v1"], resume={path!r})["v1"]
         except CheckpointError as exc:

@@ -13,7 +13,7 @@ import pytest
 from radical_rt import __version__
 from radical_rt.apps.cli import build_parser, main, plain_text
 from radical_rt.io import zconfig
-from radical_rt.io.transport import _one_line
+from radical_rt.io.zenoh_transport import _one_line
 from replayer.synth.api import synthesize
 
 MARKUP = re.compile(r"``|:[a-z]+:`|\.rs:\d+")

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from radical_rt.clock.siru_clock import COUNTER_NAMES, ClockConfig, GyroBatch, SiruClock
+from radical_rt.clock.clock_config import ClockConfig
+from radical_rt.clock.siru_clock import COUNTER_NAMES, GyroBatch, SiruClock
 
 T = 0.01
 WRAP = 2**32

@@ -18,7 +18,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from perf.fdi_table import fault_toml, synth
+from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.contract.params import ParamTable
 from radical_rt.engine import fastpath

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from perf.fdi_table import FAULT_T, KINDS, SPLIT_T, Run, evaluate, fault_toml, synth
+from perf.fdi_cases import FAULT_T, KINDS, SPLIT_T, Run, evaluate, fault_toml, synth
 from radical_rt.apps.batch import process
 from radical_rt.contract.flags import Flag, flag_names
 from radical_rt.fdi.monitor import (

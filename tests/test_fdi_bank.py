@@ -23,7 +23,7 @@ import math
 import numpy as np
 import pytest
 
-from perf.fdi_table import fault_toml, synth
+from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.fdi.fdi_hypotheses import HypothesisBank
 from radical_rt.fdi.monitor import FaultMonitor

@@ -12,9 +12,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from perf.fdi_table import fault_toml, synth
+from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
-from radical_rt.apps.node import build_processors
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
 from support.node import input_messages
 

@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from support.node import input_messages, make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh

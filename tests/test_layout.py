@@ -75,7 +75,7 @@ def test_clock_layout_constants_are_the_table():
 
 
 def test_clock_params_fill_every_parameter():
-    from radical_rt.clock.siru_clock import ClockConfig
+    from radical_rt.clock.clock_config import ClockConfig
     p = ClockConfig().params()
     assert p.shape == (clock_layout.NPRM,) and p[clock_layout.P_T] == 0.01
     assert p[clock_layout.P_WRAP] == 2.0**32 and np.isfinite(p).all()

@@ -13,10 +13,11 @@ import time
 import msgpack
 import pytest
 
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.contract.flags import Flag
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from radical_rt.stream.eos import make_eos
 from replayer.replay import replay
 from support.node import MemNode, input_messages, make_archive, wait_for

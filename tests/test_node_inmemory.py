@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from radical_rt.apps.batch import make_processor, process
-from radical_rt.apps.node import FilterNode, build_processors, warm_up
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors, warm_up
 from radical_rt.contract.flags import Flag
 from radical_rt.io import checkpoint as ckpt
-from radical_rt.io.transport import InMemoryBus, InMemoryTransport
+from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
 from replayer.archive import ArchiveReader
 from support.node import (
     MemNode,

@@ -16,10 +16,11 @@ import pytest
 
 from radical_rt.apps.batch import make_processor, process
 from radical_rt.apps.cli import main as radical_main
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from replayer.archive import ArchiveReader
 from support.node import cmd, input_messages, wait_for
 

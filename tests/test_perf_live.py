@@ -18,15 +18,23 @@ import sys
 import numpy as np
 import pytest
 
-from perf import bench_capacity, bench_latency, bench_startup, live
-from radical_rt.apps.node import LoopTiming
+from perf import (
+    bench_capacity,
+    bench_latency,
+    bench_startup,
+    live,
+    live_analysis,
+    live_host,
+    live_stream,
+)
+from radical_rt.apps.node_timing import LoopTiming
 from support.node import MemNode
 
 
 @pytest.fixture(scope="module")
 def stream(tmp_path_factory):
     path = tmp_path_factory.mktemp("perf_stream") / "stream.mpk"
-    return live.build_stream(3.0, path)
+    return live_stream.build_stream(3.0, path)
 
 
 # ------------------------------------------------------------------------------------ fast
@@ -44,7 +52,7 @@ def test_loop_timing_records_every_fed_message(stream):
     mn = MemNode(("v1",), timing=timing)
     try:
         for code, payload in zip(stream["topics"], stream["payloads"], strict=True):
-            mn.publish("v1", live.INPUT_TOPICS[code], payload)
+            mn.publish("v1", live_stream.INPUT_TOPICS[code], payload)
         mn.idle()
         fed = dict(mn.node.vehicles["v1"].fed)
         published = dict(mn.node.vehicles["v1"].published)
@@ -54,7 +62,7 @@ def test_loop_timing_records_every_fed_message(stream):
     assert a["vehicle"].size == sum(fed.values()) == len(stream["topics"])
     assert np.all(a["vehicle"] == 0)
     assert np.array_equal(np.bincount(a["topic"], minlength=4),
-                          [fed.get(t, 0) for t in live.INPUT_TOPICS])
+                          [fed.get(t, 0) for t in live_stream.INPUT_TOPICS])
     assert np.all(a["recv_ns"] <= a["start_ns"]) and np.all(a["start_ns"] <= a["fed_ns"])
     assert np.all(a["fed_ns"] <= a["done_ns"])
     for k, kind in enumerate(LoopTiming.KINDS):
@@ -89,9 +97,9 @@ def _fake_run(stream, samples, late_msg: int | None = None) -> live.NodeRun:
 
 
 def test_analysis_recovers_known_latencies(stream):
-    samples = live.sample_times(stream)
+    samples = live_stream.sample_times(stream)
     assert samples[0].size > 250 and np.all(np.diff(samples[0]) > 0)
-    r = live.analyse(_fake_run(stream, samples), stream, warmup_s=0.5, measure_s=2.0,
+    r = live_analysis.analyse(_fake_run(stream, samples), stream, warmup_s=0.5, measure_s=2.0,
                      samples=samples)
     assert r["node_timing_complete"]
     exact = {"hop_in_ms": 0.1, "node_queue_ms": 0.01, "node_feed_ms": 0.2, "node_publish_ms": 0.05,
@@ -106,7 +114,7 @@ def test_analysis_recovers_known_latencies(stream):
 
     # one late SIRU message inside the window: one service miss, and its packet is late too
     siru_in = [m for m in samples[1] if 1.0 < stream["t"][m] < 2.0]
-    r = live.analyse(_fake_run(stream, samples, late_msg=int(siru_in[0])), stream, 0.5, 2.0, samples)
+    r = live_analysis.analyse(_fake_run(stream, samples, late_msg=int(siru_in[0])), stream, 0.5, 2.0, samples)
     assert r["service_misses"]["misses"] == 1 and r["reaction_misses"]["misses"] == 1
     assert r["inclusion_misses"]["misses"] == 1
     assert r["service_ms"]["max"] == pytest.approx(15.36)
@@ -114,19 +122,19 @@ def test_analysis_recovers_known_latencies(stream):
 
 def test_packet_presets_parse(tmp_path):
     from radical_rt.stream.telemetry import load_packets
-    presets = live.packet_presets()
+    presets = live_stream.packet_presets()
     assert presets["window"] is not None
     for name, text in presets.items():
         if text is None:  # this version has no sample trigger
             continue
-        specs = load_packets(live.packet_file(name, tmp_path))
+        specs = load_packets(live_stream.packet_file(name, tmp_path))
         if name == "sample":
             assert specs["small"].trigger == "sample" and specs["small"].period_s == 0.01
-        elif live.trigger_supported():
+        elif live_stream.trigger_supported():
             assert specs["small"].trigger == "window" and specs["small"].period_s == 0.1
-    assert live.packet_file("default", tmp_path) is None
-    with pytest.raises(live.LiveError):
-        live.packet_file("no-such-preset-or-file", tmp_path)
+    assert live_stream.packet_file("default", tmp_path) is None
+    with pytest.raises(live_host.LiveError):
+        live_stream.packet_file("no-such-preset-or-file", tmp_path)
 
 
 def test_node_timing_out_refuses_an_impossible_path_before_starting(tmp_path, capsys):

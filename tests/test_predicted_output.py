@@ -145,7 +145,8 @@ def test_gyro_batch_prediction_skips_undetermined_samples():
 
 
 def test_clock_pending_is_the_held_back_read():
-    from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+    from radical_rt.clock.clock_config import ClockConfig
+    from radical_rt.clock.siru_clock import SiruClock
 
     clk = SiruClock(ClockConfig(), n_gyro=4)
     assert clk.pending() is None

@@ -12,9 +12,10 @@ import time
 import msgpack
 import pytest
 
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from support.node import wait_for
 
 pytestmark = pytest.mark.zenoh

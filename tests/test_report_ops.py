@@ -9,8 +9,9 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from monitors.report import ArchiveData, table_markdown  # noqa: E402
+from monitors.report_data import ArchiveData  # noqa: E402
 from monitors.report_ops import attitude_error, common_axis, load_ops, split_streams  # noqa: E402
+from monitors.report_tables import table_markdown  # noqa: E402
 from radical_rt.apps.batch import process  # noqa: E402
 from radical_rt.apps.cli import main  # noqa: E402
 from replayer.synth.api import synthesize  # noqa: E402
@@ -61,7 +62,7 @@ def test_attitude_error_against_truth():
 
 
 def test_failed_gyro_marked(two_streams):
-    from monitors.report import load_archive
+    from monitors.report_data import load_archive
 
     d: ArchiveData = load_archive(str(two_streams), "x")
     d.last = dict(d.last, flags=1 << 2)  # GYRO_B_FAILED

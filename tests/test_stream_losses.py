@@ -156,8 +156,9 @@ def test_input_queue_is_bounded_in_bytes():
     and counts what it drops (before: bounded in samples only)."""
     import threading
 
-    from radical_rt.apps.node import FilterNode, build_processors
-    from radical_rt.io.transport import InMemoryBus, InMemoryTransport
+    from radical_rt.apps.node import FilterNode
+    from radical_rt.apps.node_setup import build_processors
+    from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
 
     bus = InMemoryBus()
     node = FilterNode(InMemoryTransport(bus), build_processors(["v1"]), queue_size=4096,

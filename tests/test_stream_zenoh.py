@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from radical_rt.apps.batch import process
-from radical_rt.apps.node import FilterNode, build_processors
+from radical_rt.apps.node import FilterNode
+from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
-from radical_rt.io.transport import ZenohTransport
+from radical_rt.io.zenoh_transport import ZenohTransport
 from replayer.replay import replay
 from support.node import make_archive, wait_for
 

@@ -9,7 +9,9 @@ import time
 import pytest
 
 from radical_rt.io import zconfig
-from radical_rt.io.transport import InMemoryBus, InMemoryTransport, ZenohTransport, key_matches
+from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
+from radical_rt.io.transport import key_matches
+from radical_rt.io.zenoh_transport import ZenohTransport
 
 
 @pytest.mark.parametrize("expr, key, ok", [

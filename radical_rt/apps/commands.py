@@ -86,7 +86,7 @@ class Command:
 
 
 class Target(Protocol):
-    """What a command acts on: one vehicle of the node (see :class:`radical_rt.apps.node.Vehicle`)."""
+    """What a command acts on: one vehicle of the node (see :class:`radical_rt.apps.node_vehicle.Vehicle`)."""
 
     sp: StreamProcessor
 

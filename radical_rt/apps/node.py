@@ -24,6 +24,12 @@ Threads and ownership:
 
 The StreamProcessor is the batch shell's (:func:`radical_rt.apps.batch.make_processor`), so a node fed
 an archive's input messages in ``log_time`` order ends with bit-identical estimates.
+
+This module owns :class:`FilterNode` (lifecycle, filter loop, housekeeping). Around it:
+:mod:`radical_rt.apps.node_vehicle` (one served vehicle; the outputs' encoding ``packb``),
+:mod:`radical_rt.apps.command_queue` (commands from the query callbacks to the loop),
+:mod:`radical_rt.apps.node_eos` (end of stream), :mod:`radical_rt.apps.link_watch` (link loss),
+:mod:`radical_rt.apps.node_setup` (``build_processors``, ``warm_up``).
 """
 
 from __future__ import annotations
@@ -32,147 +38,30 @@ import functools
 import logging
 import math
 import os
-import queue
-import re
 import threading
 import time
-from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
 
-import msgpack
-import numpy as np
-
 from radical_rt.apps import commands
-from radical_rt.apps.batch import make_processor, make_summary
-from radical_rt.apps.link_watch import LinkWatch, check_links, input_seen
-from radical_rt.apps.node_clock import ClockNotice
+from radical_rt.apps.command_queue import CommandQueue
+from radical_rt.apps.link_watch import check_links, input_seen
+from radical_rt.apps.node_eos import end_of_stream, release_idle
 from radical_rt.apps.node_timing import LoopTiming
-from radical_rt.contract.params import ParamTable
+from radical_rt.apps.node_vehicle import Vehicle, note_reject, packb, report_fifo_losses
 from radical_rt.io import checkpoint as ckpt
-from radical_rt.io.transport import Inbox, Transport, ZenohTransport
-from radical_rt.stream.eos import EOS_TOPIC, decode_eos
-from radical_rt.stream.packets import InputError
+from radical_rt.io.transport import Inbox, Transport
+from radical_rt.io.zenoh_transport import ZenohTransport
+from radical_rt.stream.eos import EOS_TOPIC
 from radical_rt.stream.processor import INPUT_TOPICS, StreamProcessor
 
 log = logging.getLogger("radical.node")
-VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
 QUEUE_BYTES = 64 << 20  # default byte bound of the input FIFO (payload bytes waiting)
-
-
-def packb(msg: Any) -> bytes:
-    """msgpack with numpy scalars/arrays converted (outputs are mostly plain Python already)."""
-    return msgpack.packb(msg, use_bin_type=True, default=_np_default)
-
-
-def _np_default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"cannot serialize {type(obj).__name__}")
-
-
-class Vehicle:
-    """One vehicle served by the node: its StreamProcessor and its counters."""
-
-    def __init__(self, node: FilterNode, name: str, sp: StreamProcessor) -> None:
-        if not VEHICLE_RE.match(name):
-            raise ValueError(f"vehicle name {name!r} must match [a-z0-9_-]+")
-        self.node, self.name, self.sp = node, name, sp
-        self.prefix = f"radical/{name}/"
-        self.lock = threading.Lock()  # guards the counters below (read by status/diag)
-        self.received: dict[str, int] = defaultdict(int)
-        self.overflow: dict[str, int] = defaultdict(int)
-        self.overflow_bytes: dict[str, int] = defaultdict(int)
-        self.fed: dict[str, int] = defaultdict(int)  # loop thread only
-        self.commands_applied = 0
-        self.published: dict[str, int] = defaultdict(int)
-        self.clock_notice = ClockNotice(name)
-        # end of stream (docs/node.md, "End of stream"): received at the last marker, markers,
-        # inputs a marker reported sent but never received, releases after an idle time
-        self.at_eos: dict[str, int] = {}
-        self.eos_seen = self.reported_lost = self.idle_releases = 0
-        self.last_input_mono = 0.0
-        self.holding = False  # inputs taken since the last release of everything
-        self.link = LinkWatch(node.stale_after_s) if node.stale_after_s else None
-
-    # ---- called by commands.apply (filter loop thread)
-    def status(self) -> dict[str, Any]:
-        e, sp = self.sp.engine, self.sp
-        return {"vehicle": self.name, "t": float(e.t), "mode": e.mode, "flags": int(sp.flags),
-                "flag_names": sp.flag_names(), "q_body_from_inertial": e.q.tolist(),
-                "est": e.estimates(), "sigma": e.sigmas(),
-                "excluded": [int(i) for i in np.nonzero(e.excluded)[0]],
-                "counters": sp.counters(), "rejected": dict(sp.rejected),
-                "summary": make_summary(sp), "node": self.node_info()}
-
-    def write_checkpoint(self) -> str:
-        return self.node.write_checkpoint()
-
-    def end_stream(self, next_start: str | None) -> dict[str, Any]:
-        self.node.publish(self, self.sp.end_stream(None))
-        summary = make_summary(self.sp)
-        if next_start is not None:
-            self.node.publish(self, self.sp.end_stream(next_start))
-        return {"summary": summary, "next": next_start or "none"}
-
-    def node_info(self) -> dict[str, Any]:
-        with self.lock:
-            received, overflow = dict(self.received), dict(self.overflow)
-            overflow_bytes = dict(self.overflow_bytes)
-        n = self.node
-        return {"received": received, "fed": dict(self.fed), "queue_overflow": overflow,
-                "queue_overflow_bytes": overflow_bytes,
-                "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
-                "queue_bytes": n.queue_bytes, "queue_bytes_used": n.queue_bytes_used(),
-                "commands_applied": self.commands_applied, "published": dict(self.published),
-                "eos": self.eos_seen, "reported_lost": self.reported_lost,
-                "idle_releases": self.idle_releases,
-                "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,
-                "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
-                "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
-                "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
-                if n.last_checkpoint_mono is not None else None}
-
-
-class _Pending:
-    """A command waiting for the filter loop; the reply is handed back through an event."""
-
-    def __init__(self, vehicle: Vehicle, cmd: commands.Command) -> None:
-        self.vehicle, self.cmd = vehicle, cmd
-        self.done = threading.Event()
-        self.lock = threading.Lock()
-        self.state = "pending"  # → running → done, or pending → cancelled
-        self.reply: dict[str, Any] = {}
-
-    def claim(self) -> bool:
-        with self.lock:
-            if self.state != "pending":
-                return False
-            self.state = "running"
-            return True
-
-    def finish(self, reply: dict[str, Any]) -> None:
-        self.reply = reply
-        with self.lock:
-            self.state = "done"
-        self.done.set()
-
-    def wait(self, timeout: float) -> dict[str, Any]:
-        if not self.done.wait(timeout):
-            with self.lock:
-                if self.state == "pending":
-                    self.state = "cancelled"
-                    return commands.error_reply(
-                        f"not applied: the filter loop did not take the command within {timeout:g} s",
-                        self.cmd)
-            self.done.wait()  # running: finishing is quick
-        return self.reply
 
 
 class NodeStartError(RuntimeError):
     """The node could not start as asked (the message says why); nothing is left running."""
+
 
 
 class FilterNode:
@@ -230,7 +119,7 @@ class FilterNode:
         self.queue_size, self.queue_wait_s, self.queue_bytes = queue_size, queue_wait_s, queue_bytes
         self.block_outputs = block_outputs
         self.command_timeout_s = command_timeout_s
-        self._cmdq: queue.Queue = queue.Queue(maxsize=64)
+        self._cmdq = CommandQueue()
         self._mono = monotonic
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -305,13 +194,7 @@ class FilterNode:
             self._inbox.undeclare()  # the loop has stopped reading it
             self._inbox = None
         self.running = False
-        while True:  # commands that arrived too late
-            try:
-                p = self._cmdq.get_nowait()
-            except queue.Empty:
-                break
-            if p.claim():
-                p.finish(commands.error_reply("node is shutting down", p.cmd))
+        self._cmdq.refuse_all("node is shutting down")  # commands that arrived too late
         if final_checkpoint and self.checkpoint_path:
             self.write_checkpoint()
 
@@ -341,14 +224,11 @@ class FilterNode:
             return packb(commands.error_reply(str(exc), exc))
         if not self.running or self._stop.is_set():
             return packb(commands.error_reply("node is shutting down", cmd))
-        p = _Pending(v, cmd)
-        try:
-            self._cmdq.put_nowait(p)
-        except queue.Full:
-            return packb(commands.error_reply("too many pending commands, try again", cmd))
+        return packb(self._cmdq.submit(v, cmd, self.command_timeout_s, self._wake_if_idle))
+
+    def _wake_if_idle(self) -> None:
         if self._idle and self._inbox is not None:  # the loop waits for input: wake it
             self._inbox.wake()
-        return packb(p.wait(self.command_timeout_s))
 
     # ------------------------------------------------------------------ filter loop thread
     def _loop(self) -> None:
@@ -361,14 +241,15 @@ class FilterNode:
                 item = inbox.try_recv()
                 if item is None:
                     self._idle = True  # before the last look: a command queued after it wakes us
-                    self._run_commands()
+                    self._cmdq.run()
                     self._housekeeping()
-                    self._idle_release()
+                    if self.idle_release_s is not None:
+                        release_idle(self, self._mono())
                     item = inbox.recv()  # waits with the GIL released; None: woken
                     self._idle = False
                     if item is None:
                         continue
-                self._run_commands()
+                self._cmdq.run()
                 self._take(*item)
                 self._housekeeping()
             while self._mono() < self._drain_until:  # stopping: finish what is queued
@@ -401,7 +282,7 @@ class FilterNode:
             input_seen(self, v, self._mono())
         if topic not in INPUT_TOPICS:
             if topic == EOS_TOPIC:
-                self._end_of_stream(v, data)
+                end_of_stream(self, v, data)
             return  # other keys of the vehicle (the FIFO also holds a local wake-up)
         with v.lock:
             v.received[topic] += 1
@@ -411,74 +292,13 @@ class FilterNode:
         self._feed(v, topic, data, t_recv)
         self._processed += 1
 
-    def _end_of_stream(self, v: Vehicle, data: bytes) -> None:
-        """An end-of-stream marker (:mod:`radical_rt.stream.eos`): losses counted, everything held
-        released (as at the end of ``radical process``), the next stream prepared."""
-        try:
-            nxt, counts, source = decode_eos(data, INPUT_TOPICS)
-        except InputError as exc:
-            _note_reject(v.sp, EOS_TOPIC, exc.reason, str(exc))
-            return
-        with v.lock:
-            received = dict(v.received)
-        lost = sum(max(0, n - (received.get(t, 0) - v.at_eos.get(t, 0))) for t, n in counts.items())
-        v.at_eos = received
-        v.eos_seen += 1
-        if v.link is not None:
-            v.link.ended()
-        if lost:
-            v.reported_lost += lost
-            v.sp.note_reported_loss(lost)
-            log.warning("%s: end of stream: %d input message(s) sent were never received",
-                        v.name, lost)
-        self.publish(v, v.sp.end_stream(None, source=source) + v.sp.fault_now())
-        if nxt != "none":
-            self.publish(v, v.sp.end_stream(nxt))
-        v.holding = False
-
-    def _idle_release(self) -> None:
-        """Release what a vehicle holds for reordering once no input came for idle_release_s
-        (wall time): the end of a stream without a marker ends as ``radical process`` ends."""
-        if self.idle_release_s is None:
-            return
-        now = self._mono()
-        for v in self.vehicles.values():
-            if v.holding and now - v.last_input_mono >= self.idle_release_s:
-                v.holding = False
-                v.idle_releases += 1
-                self.publish(v, v.sp.end_stream(None))
-                log.info("%s: no input for %.3g s: held samples released", v.name,
-                         now - v.last_input_mono)
-
-    def _run_commands(self) -> None:
-        if self._cmdq.empty():  # the common case: no exception raised per message
-            return
-        while True:
-            try:
-                p = self._cmdq.get_nowait()
-            except queue.Empty:
-                return
-            if not p.claim():
-                continue  # the caller gave up waiting: never apply it late
-            try:
-                reply = commands.apply(p.cmd, p.vehicle)
-                p.vehicle.commands_applied += 1
-                log.log(logging.DEBUG if p.cmd.name in ("status", "get_params") else logging.INFO,
-                        "%s: command %s applied", p.vehicle.name, p.cmd.name)
-            except commands.CommandError as exc:
-                reply = commands.error_reply(str(exc), p.cmd)
-            except Exception as exc:
-                log.exception("%s: command %s failed", p.vehicle.name, p.cmd.name)
-                reply = commands.error_reply(f"internal error: {exc}", p.cmd)
-            p.finish(reply)
-
     def _feed(self, v: Vehicle, topic: str, data: bytes, t_recv: int = 0) -> None:
         t_start = time.monotonic_ns() if self.timing is not None else 0
         try:
             outs = v.sp.feed(topic, data)
         except Exception as exc:  # a bug below the input checks: count it, keep serving
             log.exception("%s: %s message raised", v.name, topic)
-            _note_reject(v.sp, topic, "internal_error", f"{type(exc).__name__}: {exc}")
+            note_reject(v.sp, topic, "internal_error", f"{type(exc).__name__}: {exc}")
             outs = v.sp.take_outputs()
         v.fed[topic] += 1
         if self.timing is None:
@@ -504,14 +324,7 @@ class FilterNode:
         """Between messages (and on the idle ticks): report the inputs the FIFO dropped, watch
         the links, and write the periodic checkpoint."""
         assert self._inbox is not None
-        take_drops = getattr(self._inbox, "take_drops", None)  # counts with their bytes
-        dropped, nbytes = take_drops() if take_drops else (self._inbox.take_dropped(), None)
-        if dropped:
-            self._report_overflows(dropped, nbytes=nbytes)
-        take_oversize = getattr(self._inbox, "take_oversize", None)
-        oversize = take_oversize() if take_oversize is not None else None
-        if oversize:
-            self._report_overflows(oversize, "too_large", "payload over the size bound")
+        report_fifo_losses(self.vehicles, self._inbox)
         if self.stale_after_s is not None:
             check_links(self, self._mono())
         if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
@@ -535,20 +348,6 @@ class FilterNode:
             log.warning("checkpoint written again after %d failure(s)", self.checkpoint_failures)
         self.checkpoint_error = None
         self._next_ckpt = self._mono() + self.checkpoint_every_s
-
-    def _report_overflows(self, dropped: dict[str, int], reason: str = "queue_overflow",
-                          what: str = "queue full", nbytes: dict[str, int] | None = None) -> None:
-        for key, n in dropped.items():
-            v = self.vehicles.get(key.split("/", 2)[1])
-            topic = key[len(v.prefix):] if v is not None else ""
-            if v is None or topic not in INPUT_TOPICS:
-                continue
-            if reason == "queue_overflow":
-                with v.lock:
-                    v.overflow[topic] += n
-                    v.overflow_bytes[topic] += (nbytes or {}).get(key, 0)
-            _note_reject(v.sp, "input", reason, f"{what}: {n} message(s) dropped", count=n)
-            log.warning("%s: %s, %d %s message(s) dropped", v.name, what, n, topic)
 
     def queue_bytes_used(self) -> int | None:
         """Payload bytes waiting in the input FIFO (None: a FIFO without a byte count)."""
@@ -576,92 +375,3 @@ class FilterNode:
         self.last_checkpoint_mono = self._mono()
         log.debug("checkpoint written to %s", path)
         return path
-
-
-def _note_reject(sp: StreamProcessor, topic: str, reason: str, message: str, count: int = 1) -> None:
-    """Count a rejection the StreamProcessor did not see itself (same bookkeeping as its own)."""
-    sp.rejected[reason] += count
-    sp.last_reject_t = sp.t_max
-    sp.last_reject = f"{topic}: {message}"
-
-
-# ------------------------------------------------------------------------------------ set-up
-def build_processors(vehicles: list[str], config: str | None = None, packets: str | None = None,
-                     clock_mode: str = "reconstruct", resume: str | None = None,
-                     resume_bump: bool = False, force_vehicle: bool = False,
-                     resume_new_stream: bool = False) -> dict[str, StreamProcessor]:
-    """One StreamProcessor per vehicle (own parameter table and packets), restored if resuming.
-
-    Resuming needs the state of every served vehicle in the checkpoint; a checkpoint of another
-    vehicle is refused unless ``force_vehicle`` (then a single-vehicle checkpoint is loaded into
-    a single served vehicle, and served vehicles the file does not hold start cold). Raises
-    ParamError / PacketError / CheckpointError / ValueError with one-line messages.
-    """
-    if not vehicles:
-        raise ValueError("give at least one --vehicle")
-    for name in vehicles:
-        if not VEHICLE_RE.match(name):
-            raise ValueError(f"vehicle name {name!r} must match [a-z0-9_-]+")
-    if len(set(vehicles)) != len(vehicles):
-        raise ValueError(f"vehicle names repeat: {vehicles}")
-    out = {}
-    for name in vehicles:
-        table = ParamTable.from_toml(config) if config else ParamTable()
-        out[name] = make_processor(table, clock_mode, packets)
-    if resume:
-        doc = ckpt.read(resume)
-        held = sorted(doc["vehicles"])
-        for name, sp in out.items():
-            key = name
-            if name not in doc["vehicles"]:
-                if not force_vehicle:
-                    raise ckpt.CheckpointError(
-                        f"{resume}: checkpoint of vehicle(s) {held}, not of {name!r} (refused; "
-                        "--force-vehicle overrides)")
-                if len(held) == 1 and len(out) == 1:
-                    key = held[0]
-                    log.warning("%s: loading the state of vehicle %r (--force-vehicle)", name, key)
-                else:
-                    log.warning("checkpoint %s has no state for vehicle %r: it starts cold "
-                                "(--force-vehicle)", resume, name)
-                    continue
-            state = doc["vehicles"][key]
-            try:
-                ckpt.restore(sp, state, bump=resume_bump, new_stream=resume_new_stream)
-            except ckpt.CheckpointError as exc:
-                raise ckpt.CheckpointError(f"{resume}: vehicle {key}: {exc}") from None
-            log.info("%s: resumed from %s (t=%.3f, mode before restart %s)", name, resume,
-                     state.get("t", math.nan), state.get("mode"))
-        extra = sorted(set(held) - set(vehicles))
-        if extra and not force_vehicle:
-            log.warning("checkpoint %s also holds %s (not served, ignored)", resume, extra)
-    return out
-
-
-def warm_up(clock_mode: str = "reconstruct", seconds: float = 2.0) -> float:
-    """Compile/load every Numba kernel on a throwaway engine fed a tiny synthetic stream.
-
-    A stationary vehicle, body = inertial: SIRU batches of 10 zero increments at 100 Hz, both
-    trackers at 10 Hz, a throw-away FDI hypothesis bank over it, then a warm start with both
-    bump modes and a cold start. Returns seconds.
-    """
-    t0 = time.perf_counter()
-    sp = make_processor(ParamTable(), clock_mode)
-    q_st1 = [1.0, 0.0, 0.0, 0.0]  # R_st1_from_body = diag(1, -1, -1)
-    q_st2 = [math.sqrt(0.5), -math.sqrt(0.5), 0.0, 0.0]  # R_st2_from_body_nom
-    n = sp.engine.n_gyro
-    for b in range(int(seconds * 10)):
-        k0 = b * 10
-        t = [1.0 + 0.01 * (k0 + i) for i in range(1, 11)]
-        sp.feed("siru", packb({"v": 1, "t_bus": t, "tt": [(k0 + i) * 10000 for i in range(1, 11)],
-                               "dtheta": [[0.0] * n for _ in range(10)], "status": [0] * 10}))
-        for topic, q in (("st1", q_st1), ("st2", q_st2)):
-            sp.feed(topic, packb({"v": 1, "t_bus": t[-1], "q": q, "n_stars": 9, "valid": True}))
-    if sp.engine.fdi is not None:  # the FDI bank's kernels (they run only during an alarm)
-        sp.engine.fdi.compile_bank(sp.engine)
-    sp.end_stream("warm")
-    e = sp.engine
-    e.bump({g: list(v) for g, v in e.si.bump_sigma.items()}, "scale")
-    e.cold_start()
-    ckpt.capture(sp, "warm-up")
-    return time.perf_counter() - t0

@@ -140,16 +140,13 @@ def run(args: argparse.Namespace) -> int:
     err = _check(args)
     if err:
         return _fail(err)
-    from radical_rt.apps.node import (
-        FilterNode,
-        LoopTiming,
-        NodeStartError,
-        build_processors,
-        warm_up,
-    )
+    from radical_rt.apps.node import FilterNode, NodeStartError
+    from radical_rt.apps.node_setup import build_processors, warm_up
+    from radical_rt.apps.node_timing import LoopTiming
     from radical_rt.contract.params import ParamError
     from radical_rt.io.checkpoint import CheckpointError
-    from radical_rt.io.transport import TransportError, ZenohTransport
+    from radical_rt.io.transport import TransportError
+    from radical_rt.io.zenoh_transport import ZenohTransport
     from radical_rt.stream.telemetry import PacketError
 
     try:

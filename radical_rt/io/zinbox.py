@@ -1,7 +1,8 @@
-"""A Zenoh input FIFO bounded in bytes as well as in samples (issue 23, "a byte bound on the
-input queue").
+"""The input FIFOs of :class:`radical_rt.io.zenoh_transport.ZenohTransport`: :class:`ZInbox`, pulled
+from a Zenoh ``FifoChannel``, and :class:`ZByteInbox`, bounded in bytes as well as in samples
+(issue 23, "a byte bound on the input queue").
 
-A Zenoh ``FifoChannel`` (:class:`radical_rt.io.transport._ZInbox`) counts samples only: its bytes are
+A Zenoh ``FifoChannel`` (:class:`ZInbox`) counts samples only: its bytes are
 bounded by ``capacity`` × the largest Zenoh message, and a slow consumer fed large junk can hold
 gigabytes in it. :class:`ZByteInbox` instead takes each sample in a subscriber callback and looks
 at its length *before* copying it into Python:
@@ -27,11 +28,88 @@ unbounded channel, which would hold the flood again (docs/node.md, "Losses and b
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from radical_rt.io.transport import MemInbox
+from radical_rt.io.mem_transport import MemInbox
+
+if TYPE_CHECKING:
+    from radical_rt.io.zenoh_transport import ZenohTransport
 
 log = logging.getLogger("radical.transport")
+
+
+class ZInbox:
+    """:class:`~radical_rt.io.transport.Inbox` on a Zenoh subscriber with a
+    ``FifoChannel(capacity)`` handler.
+
+    A full channel blocks the session's receive thread (back-pressure on BLOCK publishers; DROP
+    publishers drop in their own queues), so nothing is dropped here. The subscriber also takes
+    samples of its own session, so that :meth:`wake` can end a blocked ``recv`` with a
+    session-local put on ``wake_key`` (it never leaves the process); the owner publishes its own
+    data with ``remote_only`` (it would otherwise come back into this FIFO).
+    """
+
+    def __init__(self, transport: ZenohTransport, key: str, capacity: int,
+                 max_payload: int | None = None) -> None:
+        z = transport.zenoh
+        self._t, self._z = transport, z
+        self.max_payload = max_payload  # larger payloads are dropped uncopied (take_oversize)
+        self._oversize: dict[str, int] = {}
+        self.wake_key = _wake_key(key)
+        self._sub: Any = transport.session.declare_subscriber(key, z.handlers.FifoChannel(capacity))
+
+    def _item(self, s: Any) -> tuple[str, bytes] | None:
+        key = str(s.key_expr)
+        if key == self.wake_key:
+            return None
+        if self.max_payload is not None and len(s.payload) > self.max_payload:
+            self._oversize[key] = self._oversize.get(key, 0) + 1  # never copied into Python
+            return None
+        return key, s.payload.to_bytes()
+
+    def try_recv(self) -> tuple[str, bytes] | None:
+        while (s := self._sub.try_recv()) is not None:
+            item = self._item(s)
+            if item is not None:
+                return item
+        return None
+
+    def recv(self) -> tuple[str, bytes] | None:
+        try:
+            return self._item(self._sub.recv())
+        except Exception as exc:  # undeclared subscriber or closed session
+            log.debug("inbox recv: %s", exc)
+            return None
+
+    def take_oversize(self) -> dict[str, int]:
+        """Samples dropped since the last call because they exceeded max_payload, per key."""
+        out, self._oversize = self._oversize, {}
+        return out
+
+    def wake(self) -> None:
+        try:
+            self._t.session.put(self.wake_key, b"",
+                                allowed_destination=self._z.Locality.SESSION_LOCAL)
+        except Exception as exc:  # closed session: nothing is waiting any more
+            log.debug("inbox wake: %s", exc)
+
+    def take_dropped(self) -> dict[str, int]:
+        return {}
+
+    def undeclare(self) -> None:
+        if self._sub is not None:
+            try:
+                self._sub.undeclare()
+            except Exception as exc:
+                log.debug("inbox undeclare: %s", exc)
+            self._sub = None
+
+
+def _wake_key(expr: str) -> str:
+    """A concrete key matched by ``expr`` that no vehicle or topic uses (upper case)."""
+    chunks = ["WAKE" if c in ("*", "**") else c for c in expr.split("/")]
+    chunks[-1] = "WAKE"
+    return "/".join(chunks)
 
 
 class ZByteInbox(MemInbox):

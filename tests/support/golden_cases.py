@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from perf.fdi_table import fault_toml, synth
+from perf.fdi_cases import fault_toml, synth
 from replayer.synth import synthesize
 from studies.clock_matrix_cases import by_name, scenario
 
