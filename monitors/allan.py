@@ -138,7 +138,7 @@ def table(results: list[GyroResult], truth: dict[str, float] | None) -> str:
 
 def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev: float,
               per_decade: int, progress: bool = False) -> dict[str, Any]:
-    from replayer.archive import read_scenario
+    from radical_rt.io.archive import read_scenario
 
     t0, t1 = parse_segment(segment)
     seg = load_segment(path, t0, t1, progress)

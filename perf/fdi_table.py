@@ -149,7 +149,7 @@ class Run:
         """Feed the messages with t_from ≤ log time < t_to (s from the bus origin); the ones before
         t_from only update ``prefix_hash`` (hashlib object) when given. ``progress(t)`` is called
         every ``progress_every_s`` of log time."""
-        from replayer.archive import ArchiveReader
+        from radical_rt.io.archive import ArchiveReader
         t0 = time.perf_counter()
         lo, hi = t_from * 1e9, t_to * 1e9
         next_p = -math.inf
@@ -321,7 +321,7 @@ def run_nominal_long(work: Path, hours: float) -> dict[str, Any]:
     path = synth(fault_toml(None, duration=hours * 3600.0, name="fdi-long", moves=moves),
                  work / "long.mcap")
     run = Run(param_period=600.0)
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     with ArchiveReader(str(path)) as reader:
         total = reader.message_counts.get("/siru", 0)
     _progress(f"[fdi_table] long nominal run: {total} SIRU messages")

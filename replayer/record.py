@@ -62,10 +62,10 @@ from typing import Any
 import msgpack
 
 from radical_rt.contract.conventions import t_to_ns
+from radical_rt.contract.schemas import SCHEMAS, schema_name
+from radical_rt.io.archive import ArchiveError, ArchiveWriter
 from radical_rt.io.outpaths import output_file
-from replayer.archive import ArchiveError, ArchiveWriter
 from replayer.replay import ReplayError, open_session, tool_config
-from replayer.schemas import SCHEMAS, schema_name
 
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
 _TOPIC_RE = re.compile(r"^[A-Za-z0-9_*$-]+(/[A-Za-z0-9_*$-]+)*$")

@@ -24,9 +24,9 @@ KNOWN = {
     ("radical_rt/io/transport.py", "self.bus._add"),
     ("radical_rt/io/transport.py", "self.bus._find"),
     ("radical_rt/io/transport.py", "self.bus._remove"),
-    ("replayer/archive.py", "r._header"),  # the same class
-    ("replayer/archive.py", "r._reader"),  # the same class
-    ("replayer/archive.py", "r._summary"),  # the same class
+    ("radical_rt/io/archive.py", "r._header"),  # the same class
+    ("radical_rt/io/archive.py", "r._reader"),  # the same class
+    ("radical_rt/io/archive.py", "r._summary"),  # the same class
     ("studies/montecarlo.py", "e._vector_update"),
 }
 

@@ -15,8 +15,8 @@ from radical_rt.apps.batch import make_processor, process
 from radical_rt.apps.node import FilterNode, build_processors, warm_up
 from radical_rt.contract.flags import Flag
 from radical_rt.io import checkpoint as ckpt
+from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.transport import InMemoryBus, InMemoryTransport
-from replayer.archive import ArchiveReader
 from support.node import (
     MemNode,
     feed_archive,

@@ -25,10 +25,10 @@ from radical_rt.contract.paper_table import format_table, rows
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.contract.state import PARAM_GROUPS
 from radical_rt.engine.filter import Engine
+from radical_rt.io.archive import ArchiveError, ArchiveReader, ArchiveWriter
 from radical_rt.io.outpaths import OutputPathError, output_file, prepare_output
 from radical_rt.stream.processor import StreamProcessor
 from radical_rt.stream.telemetry import PacketError, load_packets
-from replayer.archive import ArchiveError, ArchiveReader, ArchiveWriter
 
 INPUTS = ("/siru", "/st1", "/st2", "/temp")
 

@@ -16,8 +16,8 @@ import argparse
 import json
 import sys
 
+from radical_rt.io.archive import ArchiveError
 from radical_rt.io.outpaths import output_file
-from replayer.archive import ArchiveError
 
 from .api import synthesize
 from .scenario import print_default
