@@ -181,6 +181,10 @@ def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev:
     return {"dir": str(out), "table": md, "doc": doc}
 
 
+#: the subcommand's line in `radical --help`
+HELP = "Allan deviation and gyro noise parameters from a static segment"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN.mcap", help="archive with a /siru channel")
     p.add_argument("--segment", metavar="T0:T1", help="bus-time segment in s (default: all)")

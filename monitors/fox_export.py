@@ -188,6 +188,10 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
     return {"path": path_out, "messages": dict(sorted(counts.items())), "skipped": skipped}
 
 
+#: the subcommand's line in `radical --help`
+HELP = "re-encode an archive for Foxglove / Lichtblick (json)"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN.mcap", help="any RADICAL-RT archive (input or output)")
     p.add_argument("-o", "--out", "--output", dest="out", required=True, metavar="OUT.mcap",

@@ -301,6 +301,10 @@ def _eos_lost(data: bytes, veh: str, since: dict[tuple[str, str], int]) -> int:
 
 
 # -------------------------------------------------------------------------------------- CLI
+#: the subcommand's line in `radical --help`
+HELP = "record radical/<vehicle>/** keys to MCAP"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", type=output_file, help="archive to write")
     p.add_argument("--vehicle", required=True,

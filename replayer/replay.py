@@ -498,6 +498,10 @@ def _rate_arg(text: str) -> float:
     return v
 
 
+#: the subcommand's line in `radical --help`
+HELP = "publish an archive's input channels over Zenoh"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IN.mcap",
                    help="archive(s), replayed in sequence as disjoint streams")

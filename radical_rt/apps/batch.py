@@ -158,6 +158,10 @@ def summary_table(summary: dict[str, Any]) -> str:
     return format_table(rows(si["estimate"], si["sigma"], truth))
 
 
+#: the subcommand's line in `radical --help`
+HELP = "run the calibration engine over archives (batch shell)"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IN.mcap", help="input archives (disjoint streams, in order)")
     p.add_argument("-o", "--output", metavar="OUT.mcap", type=output_file, help="output archive (telemetry, fault, diag)")

@@ -23,6 +23,9 @@ from .api import synthesize
 from .scenario import print_default
 from .schema import ScenarioError
 
+#: the subcommand's line in `radical --help`
+HELP = "synthesize a MESSENGER-like telemetry archive (MCAP)"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `radical synth`."""

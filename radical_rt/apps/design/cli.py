@@ -30,6 +30,9 @@ from radical_rt.apps.design.constraints import Pointing, check
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.io.outpaths import output_file
 
+#: the subcommand's line in `radical --help`
+HELP = "covariance analysis and optimization of a calibration maneuver"
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in name or TOML file")
