@@ -14,7 +14,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
+PACKAGES = ("radical_rt", "replayer", "mission", "monitors", "perf", "studies")
 
 #: (module path, expression) of the private accesses left (same-class helpers included)
 KNOWN = {

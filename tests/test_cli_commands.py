@@ -1,16 +1,21 @@
-"""How `radical` finds its subcommands (#18): the engine's own (`process`, `node`, `design`) by name, every
+"""How `radical` finds its subcommands (#18): the engine's own (`process`, `node`) by name, every
 other one through the entry points of group ``radical.commands``; a contract command without a
 provider, a stale entry point and a provider that fails to import each give one clear line."""
 
 from __future__ import annotations
 
+import ast
 import re
 import sys
 from importlib.metadata import EntryPoint
+from pathlib import Path
 
 import pytest
 
 from radical_rt.apps import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+UPPER = re.compile(r"\b(replayer|mission|monitors|perf|studies)\.[A-Za-z_]")
 
 
 def _with_entry_points(monkeypatch, **eps: str) -> None:
@@ -73,3 +78,15 @@ def test_an_extension_comes_with_its_help_and_stale_or_broken_ones_say_why(
         for m in ("radical_ext_ok", "radical_ext_broken"):
             sys.modules.pop(m, None)
 
+
+def test_the_engine_names_no_upper_package_even_by_string():
+    """No string in radical_rt (docstrings included) is a dotted name in replayer, mission,
+    monitors, perf or studies: nothing can be imported upward by name (import-linter sees only
+    import statements)."""
+    hits = []
+    for path in sorted((ROOT / "radical_rt").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                hits += [f"{path.relative_to(ROOT)}:{node.lineno}: {m.group(0)}…"
+                         for m in UPPER.finditer(node.value)]
+    assert hits == []

@@ -2,8 +2,8 @@
 
 Each subcommand lives in its own module exposing ``HELP`` (its line in ``radical --help``),
 ``add_arguments(parser)`` and ``run(args) -> int``; this file only wires them together. The
-engine's own commands (``process``, ``node``, ``design``) are named here; every other one is
-provided by an installed package through an entry point of group ``radical.commands`` (``name = "module"``, in
+engine's own commands (``process``, ``node``) are named here; every other one is provided by an
+installed package through an entry point of group ``radical.commands`` (``name = "module"``, in
 pyproject.toml's ``[project.entry-points."radical.commands"]``), so that this package names none
 of the tools built on it. The contract's commands (CONTRACT §5) are always listed: one whose
 provider is not installed says so when run. A provider that fails to import is listed as
@@ -25,8 +25,7 @@ from radical_rt import __version__
 #: entry-point group of the subcommands provided by other packages
 GROUP = "radical.commands"
 #: subcommand -> module, for the commands of the engine package itself
-BUILTIN = {"process": "radical_rt.apps.batch", "node": "radical_rt.apps.node_cli",
-           "design": "radical_rt.apps.design.cli"}
+BUILTIN = {"process": "radical_rt.apps.batch", "node": "radical_rt.apps.node_cli"}
 #: the commands CONTRACT §5 requires of `radical`, in the order `radical --help` lists them
 #: (the other subcommands follow in entry-point order)
 CONTRACT_COMMANDS = ("synth", "process", "node", "replay", "record", "monitor", "report", "bench")

@@ -7,7 +7,7 @@
    recorder cleanly (SIGINT), writes the summary file and `radical report` of the recording;
 5. prints the paper-style table (estimate ± 1σ, truth, error/σ) and where everything is.
 
-Usage: ``python -m radical_rt.apps.demo [--out DIR] [--duration S] [--seed N] [--port P]``.
+Usage: ``python -m mission.demo [--out DIR] [--duration S] [--seed N] [--port P]``.
 """
 
 from __future__ import annotations
