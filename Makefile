@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m radical_rt.apps.demo --out $(OUT)
+	$(BIN)/python -m mission.demo --out $(OUT)
 
 # The browser test drives Debian's chromium; install it when missing (needs root, as in CI).
 sysdeps:
@@ -39,7 +39,7 @@ test: $(STAMP) sysdeps jsdeps
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check radical_rt replayer monitors perf studies tests
+	$(BIN)/ruff check radical_rt replayer mission monitors perf studies tests
 	$(BIN)/lint-imports
 	$(BIN)/mypy
 

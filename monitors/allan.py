@@ -138,7 +138,7 @@ def table(results: list[GyroResult], truth: dict[str, float] | None) -> str:
 
 def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev: float,
               per_decade: int, progress: bool = False) -> dict[str, Any]:
-    from replayer.archive import read_scenario
+    from radical_rt.io.archive import read_scenario
 
     t0, t1 = parse_segment(segment)
     seg = load_segment(path, t0, t1, progress)
@@ -179,6 +179,10 @@ def run_allan(path: str, out_dir: str | None, segment: str | None, max_rate_dev:
            "params": params}
     (out / "allan.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
     return {"dir": str(out), "table": md, "doc": doc}
+
+
+#: the subcommand's line in `radical --help`
+HELP = "Allan deviation and gyro noise parameters from a static segment"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -67,7 +67,7 @@ def load_segment(path: str, t0: float | None = None, t1: float | None = None,
     import msgpack
     from tqdm import tqdm
 
-    from replayer.archive import ArchiveError, ArchiveReader
+    from radical_rt.io.archive import ArchiveError, ArchiveReader
 
     tt: list[int] = []
     tb: list[float] = []

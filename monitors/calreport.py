@@ -98,7 +98,7 @@ def convergence(d: Any) -> list[list[Any]]:
 
 def residual_stats(path: str, topic: str) -> dict[str, dict[str, Any]]:
     """Per kind: n, innovation and innovation/σ mean and RMS per axis (arcsec), NIS values."""
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     acc: dict[str, dict[str, list[Any]]] = {}
     with ArchiveReader(path) as r:

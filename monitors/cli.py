@@ -38,6 +38,10 @@ def _stale(p: argparse.ArgumentParser) -> None:
                         f"(receiver clock; default {STALE_S:g})")
 
 
+#: the subcommand's line in `radical --help`
+HELP = "live dashboards (web, tui)"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="monitor", metavar="{tui,web,foxglove}")
     tui = sub.add_parser("tui", help="terminal dashboard (textual)", description=(

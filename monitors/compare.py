@@ -24,8 +24,8 @@ from typing import Any
 import msgpack
 
 from monitors.common import GROUP_LABELS, ORDER, PAPER_UNITS, element_names, group_paper
+from radical_rt.io.archive import ArchiveError, ArchiveReader
 from radical_rt.io.outpaths import output_file
-from replayer.archive import ArchiveError, ArchiveReader
 
 
 def load_truth(path: str | Path) -> dict[str, list[float]]:

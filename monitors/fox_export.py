@@ -111,7 +111,7 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
     """Write the Foxglove archive; returns {"messages": {topic: n}, "skipped": n, "path": …}."""
     from mcap.writer import CompressionType, IndexType, Writer
 
-    from replayer.archive import ArchiveError, ArchiveReader
+    from radical_rt.io.archive import ArchiveError, ArchiveReader
 
     if not os.path.exists(path_in):
         raise ExportError(f"{path_in}: no such file")
@@ -186,6 +186,10 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
         if os.path.exists(tmp):
             os.remove(tmp)
     return {"path": path_out, "messages": dict(sorted(counts.items())), "skipped": skipped}
+
+
+#: the subcommand's line in `radical --help`
+HELP = "re-encode an archive for Foxglove / Lichtblick (json)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -8,8 +8,8 @@ schema of one of those types *except array* (no arrays of arrays). ``const``- or
 properties and ``$ref`` are rejected. The schemas made here keep to that subset.
 
 :class:`SchemaBuilder` merges the shapes of observed messages (``observe``) and returns a schema
-(``schema``) whose descriptions come from the archive's contract schemas (``replayer.schemas``,
-units in every description) or, for fields the contract leaves free (``diag``, ``fault.detail``,
+(``schema``) whose descriptions come from the archive's contract schemas
+(``radical_rt.contract.schemas``, units in every description) or, for fields the contract leaves free (``diag``, ``fault.detail``,
 counters, clock), from the field's name (``*_s`` s, ``*_ppm`` ppm, ``*_C`` °C, ``nis``
 dimensionless, …). Values inside are SI unless the name or description says otherwise.
 
@@ -258,7 +258,7 @@ def paper_schema() -> dict[str, Any]:
 
 def known_schema(topic: str) -> dict[str, Any] | None:
     """The contract schema of a topic (deep copy), or None."""
-    from replayer.archive import SCHEMAS  # the contract schemas the archive layer writes
+    from radical_rt.contract.schemas import SCHEMAS  # the contract schemas the archive layer writes
 
     s = SCHEMAS.get(topic)
     return copy.deepcopy(s) if s is not None else None

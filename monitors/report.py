@@ -126,6 +126,10 @@ def make_report(paths: list[str], out_dir: str | Path, labels: str | None = None
                           "decimated": len(d.t)} for d in data]}
 
 
+#: the subcommand's line in `radical --help`
+HELP = "paper-style tables and figures from an output archive"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``radical report``."""
     p.add_argument("inputs", nargs="+", metavar="OUT.mcap",

@@ -116,7 +116,7 @@ def _width(msgs: list[dict[str, Any]], path: tuple[str, ...]) -> int:
 
 def load_archive(path: str, label: str, max_points: int = 1500) -> ArchiveData:
     """Read one output archive (decimated for figures; the last packet exactly)."""
-    from replayer.archive import ArchiveError, ArchiveReader
+    from radical_rt.io.archive import ArchiveError, ArchiveReader
 
     if not os.path.exists(path):
         raise ReportError(f"{path}: no such file")

@@ -108,7 +108,7 @@ def attitude_error(q: np.ndarray, t: np.ndarray, t_true: np.ndarray,
 
 def load_ops(path: str, label: str, max_points: int = 1500) -> OpsData:
     """Read the ops series of one output archive (decimated to about max_points)."""
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     with ArchiveReader(path) as reader:
         topic = "/tlm/large" if reader.message_counts.get("/tlm/large") else "/tlm/medium"

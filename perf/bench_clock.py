@@ -60,7 +60,7 @@ def scenario(eps_ppm: float, duration_s: float) -> dict:
 
 def read_archive(path: str | Path) -> dict:
     """The ``/siru`` messages (as column arrays), the truth ``tt``/``t_true`` and truth counts."""
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     reader = ArchiveReader(path)
     msgs, tt_true, t_true = [], [], []

@@ -119,7 +119,7 @@ def _bank_types() -> dict[str, Any]:
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     with ArchiveReader(str(path)) as r:
         return list(r.iter_raw(topics=list(INPUTS)))
 

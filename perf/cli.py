@@ -23,6 +23,10 @@ BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
+#: the subcommand's line in `radical --help`
+HELP = "run the benchmark suite"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="quick", choices=("smoke", "quick", "full"))
     p.add_argument("--only", nargs="*", choices=list(BENCHES), help="run only these benchmarks")

@@ -107,7 +107,7 @@ class Run:
         """Feed the messages with t_from ≤ log time < t_to (s from the bus origin); the ones before
         t_from only update ``prefix_hash`` (hashlib object) when given. ``progress(t)`` is called
         every ``progress_every_s`` of log time."""
-        from replayer.archive import ArchiveReader
+        from radical_rt.io.archive import ArchiveReader
         t0 = time.perf_counter()
         lo, hi = t_from * 1e9, t_to * 1e9
         next_p = -math.inf

@@ -135,7 +135,7 @@ def run_nominal_long(work: Path, hours: float) -> dict[str, Any]:
     path = synth(fault_toml(None, duration=hours * 3600.0, name="fdi-long", moves=moves),
                  work / "long.mcap")
     run = Run(param_period=600.0)
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     with ArchiveReader(str(path)) as reader:
         total = reader.message_counts.get("/siru", 0)
     _progress(f"[fdi_table] long nominal run: {total} SIRU messages")

@@ -48,7 +48,7 @@ def _archive(directory: Path, seed: int) -> Path:
 
 
 def _messages(path: Path) -> list[tuple[str, bytes]]:
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     with ArchiveReader(path) as r:
         return [(t[1:], data) for t, _ns, data in r.iter_raw(topics=["/siru", "/st1", "/st2", "/temp"])]
 

@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hang-s", type=float, default=1.0, help="a feed longer than this hangs")
     ap.add_argument("--json", metavar="OUT.json")
     a = ap.parse_args(argv)
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     path = a.archive
     if path is None:

@@ -77,7 +77,7 @@ def build_stream(duration_s: float, path: Path, batch: int = 1, seed: int = 1,
     the archive's batching). Returns the stream dict (topic codes, times from the start [s],
     payloads, per SIRU message its reads' ``tt``).
     """
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     from replayer.synth.api import synthesize
 
     with tempfile.TemporaryDirectory() as tmp:

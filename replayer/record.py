@@ -62,10 +62,10 @@ from typing import Any
 import msgpack
 
 from radical_rt.contract.conventions import t_to_ns
+from radical_rt.contract.schemas import SCHEMAS, schema_name
+from radical_rt.io.archive import ArchiveError, ArchiveWriter
 from radical_rt.io.outpaths import output_file
-from replayer.archive import ArchiveError, ArchiveWriter
 from replayer.replay import ReplayError, open_session, tool_config
-from replayer.schemas import SCHEMAS, schema_name
 
 VEHICLE_RE = re.compile(r"^[a-z0-9_-]+$")
 _TOPIC_RE = re.compile(r"^[A-Za-z0-9_*$-]+(/[A-Za-z0-9_*$-]+)*$")
@@ -301,6 +301,10 @@ def _eos_lost(data: bytes, veh: str, since: dict[tuple[str, str], int]) -> int:
 
 
 # -------------------------------------------------------------------------------------- CLI
+#: the subcommand's line in `radical --help`
+HELP = "record radical/<vehicle>/** keys to MCAP"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", type=output_file, help="archive to write")
     p.add_argument("--vehicle", required=True,

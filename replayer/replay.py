@@ -61,8 +61,8 @@ from typing import Any
 
 import msgpack
 
+from radical_rt.io.archive import INPUT_TOPICS, ArchiveError, ArchiveReader, TruncatedArchiveWarning
 from radical_rt.stream.eos import EOS_TOPIC, make_eos
-from replayer.archive import INPUT_TOPICS, ArchiveError, ArchiveReader, TruncatedArchiveWarning
 
 log = logging.getLogger("radical.replay")
 
@@ -498,6 +498,10 @@ def _rate_arg(text: str) -> float:
     return v
 
 
+#: the subcommand's line in `radical --help`
+HELP = "publish an archive's input channels over Zenoh"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IN.mcap",
                    help="archive(s), replayed in sequence as disjoint streams")
@@ -565,7 +569,7 @@ def run(args: argparse.Namespace) -> int:
     from radical_rt.io import zconfig
 
     # archive warnings are printed here as one line each, not by logging's last-resort handler
-    archive_log = logging.getLogger("replayer.archive")
+    archive_log = logging.getLogger("radical_rt.io.archive")
     if not any(isinstance(h, logging.NullHandler) for h in archive_log.handlers):
         archive_log.addHandler(logging.NullHandler())
     try:

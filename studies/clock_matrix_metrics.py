@@ -27,7 +27,7 @@ from perf.bench_clock import match_truth, read_archive
 from radical_rt.clock.clock_config import ClockConfig
 from radical_rt.clock.siru_clock import SiruClock
 from radical_rt.contract.flags import Flag
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 
 FREQ_EVERY_MSGS = 100  # frequency estimate sampled every 100 /siru messages (10 s)
 EVENT_PRE_S, EVENT_POST_S = 1.0, 10.0  # CLOCK_ANOMALY allowed around an injected discontinuity

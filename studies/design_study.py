@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mission.design import analysis
+from mission.design import plan as planmod
 from radical_rt.apps.batch import process
-from radical_rt.apps.design import analysis
-from radical_rt.apps.design import plan as planmod
 from radical_rt.contract.state import PARAM_GROUPS
 
 

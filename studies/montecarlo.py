@@ -171,7 +171,7 @@ def process_archive(path: str | Path, table: ParamTable):
     """Run the batch pipeline over one archive; return (processor, last /truth/params, NIS log).
 
     The log holds per kind: updates used and NIS sum, all and after the SIRU clock locked."""
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     sp = make_processor(table)
     e = sp.engine

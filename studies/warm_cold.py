@@ -81,7 +81,7 @@ def synth_inputs(out: Path, duration: float | None, seed_a: int, seed_b: int) ->
 
 def load_track(path: Path, t_min: float) -> dict[str, Any]:
     """``tlm/large`` of an output archive from bus time t_min on: t (k,), est/sigma per group (k, m)."""
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     t: list[float] = []
     est: dict[str, list] = {g: [] for g in PARAM_GROUPS}
@@ -100,7 +100,7 @@ def load_track(path: Path, t_min: float) -> dict[str, Any]:
 
 
 def load_truth(path: Path) -> dict[str, Any]:
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     t: list[float] = []
     vals: dict[str, list] = {g: [] for g in PARAM_GROUPS}

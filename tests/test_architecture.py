@@ -14,15 +14,15 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("radical_rt", "replayer", "monitors", "perf", "studies")
+PACKAGES = ("radical_rt", "replayer", "mission", "monitors", "perf", "studies")
 
 #: (module path, expression) of the private accesses left (same-class helpers included)
 KNOWN = {
     ("radical_rt/clock/siru_clock.py", "fresh._F"),  # the same class
     ("radical_rt/clock/siru_clock.py", "fresh._I"),  # the same class
-    ("replayer/archive.py", "r._header"),  # the same class
-    ("replayer/archive.py", "r._reader"),  # the same class
-    ("replayer/archive.py", "r._summary"),  # the same class
+    ("radical_rt/io/archive.py", "r._header"),  # the same class
+    ("radical_rt/io/archive.py", "r._reader"),  # the same class
+    ("radical_rt/io/archive.py", "r._summary"),  # the same class
 }
 
 

@@ -1,4 +1,5 @@
-"""MCAP archive layer (replayer.archive) and message schemas (replayer.schemas): CONTRACT.md §3-§4."""
+"""MCAP archive layer (radical_rt.io.archive) and message schemas (radical_rt.contract.schemas):
+CONTRACT.md §3-§4."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
 from radical_rt.contract.conventions import t_to_ns
-from replayer.archive import (
+from radical_rt.contract.schemas import SCHEMAS, schema_name, validate
+from radical_rt.io.archive import (
     INPUT_TOPICS,
     OUTPUT_TOPICS,
     TRUTH_TOPICS,
@@ -31,7 +33,6 @@ from replayer.archive import (
     read_scenario,
     recover,
 )
-from replayer.schemas import SCHEMAS, schema_name, validate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = {"name": "unit", "vehicle": "sc1", "seed": "7", "generator": "tests", "extra": "x"}
@@ -434,7 +435,7 @@ def test_recover_complete_file_in_place(tmp_path, stream):
 
 _KILLED_WRITER = """
 import sys, time
-from replayer.archive import ArchiveWriter
+from radical_rt.io.archive import ArchiveWriter
 path, mode = sys.argv[1], sys.argv[2]
 w = ArchiveWriter(path, scenario={"name": "killed"}, chunk_size=1 << 16,
                   flush_every_s=0.01 if mode == "auto" else None)

@@ -16,7 +16,7 @@ import pytest
 from monitors.calreport import stays_below
 from radical_rt.apps.batch import process
 from radical_rt.apps.cli import main
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth.api import synthesize
 
 CHROMIUM = "/usr/bin/chromium"

@@ -122,7 +122,7 @@ def both(tmp_path_factory):
 
 def _feed(sp, path):
     from radical_rt.apps.batch import INPUTS
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     with ArchiveReader(str(path)) as reader:
         for topic, _, data in reader.iter_raw(topics=list(INPUTS)):

@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
+from mission.design import analysis
+from mission.design import plan as planmod
+from mission.design.covariance import clock_lock_s
 from radical_rt.apps.batch import process
-from radical_rt.apps.design import analysis
-from radical_rt.apps.design import plan as planmod
-from radical_rt.apps.design.covariance import clock_lock_s
 from radical_rt.contract.params import ParamTable
 from radical_rt.contract.state import PARAM_GROUPS
 
@@ -103,7 +103,7 @@ def test_time_to_target_definition():
 
 
 def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
-    from radical_rt.apps.design.optimize import Candidate
+    from mission.design.optimize import Candidate
 
     c = Candidate(a_y=30.0, a_xz=10.0, hold_s=240.0, repeats=2, start_s=172.5, dwell_s=300.0)
     sc = planmod.load(c.scenario())
@@ -115,7 +115,7 @@ def test_optimizer_candidate_is_a_runnable_scenario_of_the_right_length():
 
 
 def test_pointing_constraints_of_the_messenger_maneuver():
-    from radical_rt.apps.design.constraints import Pointing, check, tracker_visibility
+    from mission.design.constraints import Pointing, check, tracker_visibility
     from radical_rt.contract.geometry import Geometry
 
     sc = planmod.load("2006216")

@@ -32,9 +32,9 @@ import pytest
 
 from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.contract.state import PARAM_GROUPS
+from radical_rt.io.archive import ArchiveReader
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import internal_from_contract
-from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
 

@@ -1,6 +1,6 @@
 """Excitation monitor (radical_rt.engine.excitation): warns when a maneuver leaves a group unexcited.
 
-Covariance-only runs (the engine on noise-free data along the plan, radical_rt.apps.design) of ±30°
+Covariance-only runs (the engine on noise-free data along the plan, mission.design) of ±30°
 slews: about x and z only — the y components of the sense axes stay unobservable, λ, du, dv never
 converge and the monitor must warn during the last slews (it is silent at rest) — and
 about x, y and z, which must end converged with the warning cleared. ≈ 6 s.
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radical_rt.apps.design import plan as planmod
-from radical_rt.apps.design.covariance import new_engine, run_plan
+from mission.design import plan as planmod
+from mission.design.covariance import new_engine, run_plan
 from radical_rt.contract.flags import Flag, flag_names
 
 

@@ -199,7 +199,7 @@ def short_fault(tmp_path_factory):
 
 
 def test_node_takes_the_batch_decisions(short_fault, tmp_path):
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     out = tmp_path / "out.mcap"
     ref = process([str(short_fault)], str(out))
     with ArchiveReader(out) as r:

@@ -86,7 +86,7 @@ class LockstepBank:
 
 
 def _run(path, bank_type, monkeypatch):
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     monkeypatch.setattr(FaultMonitor, "bank_type", bank_type)
     sp = make_processor()
     with ArchiveReader(str(path)) as r:

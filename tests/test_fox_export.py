@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from radical_rt.apps.batch import process
 from radical_rt.apps.cli import main
 from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth.api import synthesize
 
 JS = Path(__file__).parent / "js"

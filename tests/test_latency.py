@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.contract.state import PARAM_GROUPS
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
 from tests.oracles.reference_engine import ReferenceEngine

@@ -16,8 +16,8 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors, warm_up
 from radical_rt.contract.flags import Flag
 from radical_rt.io import checkpoint as ckpt
+from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
-from replayer.archive import ArchiveReader
 from support.node import (
     MemNode,
     feed_archive,

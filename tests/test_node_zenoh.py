@@ -20,8 +20,8 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io import zconfig
+from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
-from replayer.archive import ArchiveReader
 from support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh

@@ -18,10 +18,10 @@ from scipy.spatial.transform import Rotation
 from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.clock.siru_clock import GyroBatch
 from radical_rt.engine.filter import Engine
+from radical_rt.io.archive import ArchiveReader
 from radical_rt.kernels.propagate import predict_attitude
 from radical_rt.stream.telemetry import PacketError, parse_packets
 from radical_rt.stream.tracker_queue import EventBlock, TrackerQueue
-from replayer.archive import ArchiveReader
 from replayer.synth import synthesize
 from support.scenarios import scenario
 

@@ -20,10 +20,10 @@ import pytest
 from mcap.reader import make_reader
 
 from radical_rt.apps.cli import main as cli_main
+from radical_rt.contract.schemas import SCHEMAS
 from radical_rt.io import zconfig
-from replayer.archive import ArchiveReader, TruncatedArchiveWarning
+from radical_rt.io.archive import ArchiveReader, TruncatedArchiveWarning
 from replayer.record import RecordError, bus_time_ns, parse_topics, record
-from replayer.schemas import SCHEMAS
 
 ROOT = Path(__file__).resolve().parents[1]
 

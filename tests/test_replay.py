@@ -20,7 +20,12 @@ import pytest
 
 from radical_rt.apps.cli import main as cli_main
 from radical_rt.io import zconfig
-from replayer.archive import INPUT_TOPICS, ArchiveReader, ArchiveWriter, TruncatedArchiveWarning
+from radical_rt.io.archive import (
+    INPUT_TOPICS,
+    ArchiveReader,
+    ArchiveWriter,
+    TruncatedArchiveWarning,
+)
 from replayer.record import record
 from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
 from replayer.synth.api import synthesize

@@ -15,7 +15,7 @@ from radical_rt.apps.batch import process  # noqa: E402
 from radical_rt.apps.cli import main  # noqa: E402
 from radical_rt.contract.conventions import to_paper_units  # noqa: E402
 from radical_rt.contract.paper_table import ORDER, element_names  # noqa: E402
-from replayer.archive import ArchiveReader  # noqa: E402
+from radical_rt.io.archive import ArchiveReader  # noqa: E402
 from replayer.synth.api import synthesize  # noqa: E402
 
 TABLES = {"phi2": "table2_phi2", "b": "table3_b", "lam": "table4_lam", "mu": "table5_mu",

@@ -11,8 +11,8 @@ import pytest
 from radical_rt.apps.batch import make_processor, process
 from radical_rt.contract.params import ParamTable
 from radical_rt.io import checkpoint as ckpt
+from radical_rt.io.archive import ArchiveReader, ArchiveWriter
 from radical_rt.stream.eos import decode_eos, make_eos
-from replayer.archive import ArchiveReader, ArchiveWriter
 from support.node import MemNode, feed_archive, input_messages
 
 OUT_TOPICS = ["/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag"]

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from radical_rt.contract.conventions import DEG_PER_HR
-from replayer.archive import ArchiveReader
-from replayer.schemas import validate
+from radical_rt.contract.schemas import validate
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import synthesize
 
 FAULTS = [

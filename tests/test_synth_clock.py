@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import load_scenario, synthesize
 from replayer.synth.clock import BusReads, SiruClock, latest_sample, read_counts
 from replayer.synth.simulator import stream

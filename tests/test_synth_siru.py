@@ -8,7 +8,7 @@ import pytest
 from scipy.stats import chi2
 
 from radical_rt.contract.geometry import U_NOM, V_NOM, W_NOM
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import load_scenario, synthesize
 from replayer.synth.simulator import stream
 from replayer.synth.siru import SiruModel, true_axes

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import load_scenario, synthesize
 from replayer.synth.clock import BusReads, SiruClock, latest_sample, read_counts
 from replayer.synth.scenario import print_default

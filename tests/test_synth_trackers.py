@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation as R
 from scipy.stats import binom, chi2
 
 from radical_rt.contract.geometry import R_ST1_FROM_BODY, R_ST2_FROM_BODY_NOM
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth import load_scenario, synthesize
 from replayer.synth.trackers import Thermal, star_walk
 

@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from radical_rt.apps.batch import make_processor, process
-from replayer.archive import ArchiveWriter
+from radical_rt.io.archive import ArchiveWriter
 from support.node import input_messages, make_archive
 
 ARCSEC = math.pi / 648000

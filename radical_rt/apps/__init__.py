@@ -1,1 +1,1 @@
-"""Applications on the engine: the command line, the node, batch processing, the demo, maneuver design."""
+"""Applications on the engine: the command line, the node, batch processing."""

@@ -25,10 +25,10 @@ from radical_rt.contract.paper_table import format_table, rows
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.contract.state import PARAM_GROUPS
 from radical_rt.engine.filter import Engine
+from radical_rt.io.archive import ArchiveError, ArchiveReader, ArchiveWriter
 from radical_rt.io.outpaths import OutputPathError, output_file, prepare_output
 from radical_rt.stream.processor import StreamProcessor
 from radical_rt.stream.telemetry import PacketError, load_packets
-from replayer.archive import ArchiveError, ArchiveReader, ArchiveWriter
 
 INPUTS = ("/siru", "/st1", "/st2", "/temp")
 
@@ -156,6 +156,10 @@ def summary_table(summary: dict[str, Any]) -> str:
     if "truth" in summary:
         truth = {g: [from_paper_units(g, v) for v in summary["truth"][g]] for g in summary["truth"]}
     return format_table(rows(si["estimate"], si["sigma"], truth))
+
+
+#: the subcommand's line in `radical --help`
+HELP = "run the calibration engine over archives (batch shell)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

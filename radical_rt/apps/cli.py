@@ -1,8 +1,13 @@
 """`radical` console script: one entry point, one module per subcommand.
 
-Each subcommand lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``;
-this file only wires them together (lazily, so `radical --help` stays fast and a missing optional
-dependency only affects its own subcommand).
+Each subcommand lives in its own module exposing ``HELP`` (its line in ``radical --help``),
+``add_arguments(parser)`` and ``run(args) -> int``; this file only wires them together. The
+engine's own commands (``process``, ``node``) are named here; every other one is provided by an
+installed package through an entry point of group ``radical.commands`` (``name = "module"``, in
+pyproject.toml's ``[project.entry-points."radical.commands"]``), so that this package names none
+of the tools built on it. The contract's commands (CONTRACT §5) are always listed: one whose
+provider is not installed says so when run. A provider that fails to import is listed as
+unavailable and reports its error when run, without taking the other subcommands down.
 """
 
 from __future__ import annotations
@@ -12,47 +17,68 @@ import importlib
 import re
 import sys
 import warnings
+from importlib.metadata import entry_points
+from types import ModuleType
 
 from radical_rt import __version__
 
-#: subcommand -> (module, one-line help)
-COMMANDS: dict[str, tuple[str, str]] = {
-    "synth": ("replayer.synth.cli", "synthesize a MESSENGER-like telemetry archive (MCAP)"),
-    "process": ("radical_rt.apps.batch", "run the calibration engine over archives (batch shell)"),
-    "node": ("radical_rt.apps.node_cli", "run the streaming filter node over Zenoh"),
-    "replay": ("replayer.replay", "publish an archive's input channels over Zenoh"),
-    "record": ("replayer.record", "record radical/<vehicle>/** keys to MCAP"),
-    "monitor": ("monitors.cli", "live dashboards (web, tui)"),
-    "report": ("monitors.report", "paper-style tables and figures from an output archive"),
-    "bench": ("perf.cli", "run the benchmark suite"),
-    "export": ("monitors.fox_export", "re-encode an archive for Foxglove / Lichtblick (json)"),
-    "allan": ("monitors.allan", "Allan deviation and gyro noise parameters from a static segment"),
-    "design": ("radical_rt.apps.design.cli", "covariance analysis and optimization of a calibration maneuver"),
-}
+#: entry-point group of the subcommands provided by other packages
+GROUP = "radical.commands"
+#: subcommand -> module, for the commands of the engine package itself
+BUILTIN = {"process": "radical_rt.apps.batch", "node": "radical_rt.apps.node_cli"}
+#: the commands CONTRACT §5 requires of `radical`, in the order `radical --help` lists them
+#: (the other subcommands follow in entry-point order)
+CONTRACT_COMMANDS = ("synth", "process", "node", "replay", "record", "monitor", "report", "bench")
+
+
+def providers() -> dict[str, str]:
+    """subcommand -> module path: the engine's own commands, then the entry points of
+    :data:`GROUP` (the first distribution providing a name wins; the engine's own are kept)."""
+    found = dict(BUILTIN)
+    for ep in entry_points(group=GROUP):
+        found.setdefault(ep.name, ep.module)
+    return found
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Parser with one sub-parser per available subcommand."""
+    """Parser with one sub-parser per subcommand (available, unavailable or not installed)."""
     parser = argparse.ArgumentParser(
         prog="radical", description="RADICAL-RT: RIMU calibration and attitude determination")
     parser.add_argument("--version", action="version", version=f"radical {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, (module, help_text) in COMMANDS.items():
+    found = providers()
+    names = [*CONTRACT_COMMANDS, *(n for n in found if n not in CONTRACT_COMMANDS)]
+    for name in names:
+        module = found.get(name)
+        if module is None:
+            _stub(sub, name, "not installed", f"not installed: no installed package provides "
+                  f"this command (entry point group {GROUP!r}); reinstall radical-rt "
+                  "(pip install -e .)")
+            continue
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as exc:
-            if exc.name and module.startswith(exc.name):
-                continue  # subcommand not built in this version
-            _broken(sub, name, help_text, exc)
+            if exc.name and module.startswith(exc.name):  # the provider itself is missing
+                _stub(sub, name, "not installed", f"not installed: its module {module} is "
+                      "missing (a stale entry point); reinstall radical-rt (pip install -e .)")
+            else:
+                _stub(sub, name, f"unavailable: {exc}", f"unavailable: {exc}")
             continue
         except ImportError as exc:  # one broken subcommand must not take the others down
-            _broken(sub, name, help_text, exc)
+            _stub(sub, name, f"unavailable: {exc}", f"unavailable: {exc}")
             continue
+        help_text = _help(mod)
         p = sub.add_parser(name, help=help_text, description=plain_text(mod.__doc__ or help_text),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
         p.set_defaults(handler=mod.run)
     return parser
+
+
+def _help(mod: ModuleType) -> str:
+    """A command module's ``HELP``, else the first line of its docstring."""
+    text = getattr(mod, "HELP", None) or plain_text(mod.__doc__ or "").split("\n", 1)[0]
+    return str(text)
 
 
 _ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")  # :class:`~a.b.C`, :func:`f`
@@ -75,21 +101,24 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"radical: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
-def _broken(sub, name: str, help_text: str, exc: Exception) -> None:
-    """Register a subcommand whose module failed to import: it reports the error when run."""
-    p = sub.add_parser(name, help=f"{help_text} (unavailable: {exc})")
+def _stub(sub, name: str, note: str, error: str) -> None:
+    """Register a subcommand that cannot run (``note`` in the help list): it prints
+    ``radical NAME: ERROR`` and exits with 2 whatever its arguments."""
+    p = sub.add_parser(name, help=f"({note})", add_help=False)
 
     def run(_args: argparse.Namespace) -> int:
-        print(f"radical {name}: unavailable: {exc}", file=sys.stderr)
+        print(f"radical {name}: {error}", file=sys.stderr)
         return 2
 
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=run, stub_command=True)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `radical` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and not getattr(args, "stub_command", False):  # (a stub takes any arguments)
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2

@@ -26,6 +26,10 @@ from radical_rt.io.outpaths import output_file
 log = logging.getLogger("radical.node")
 
 
+#: the subcommand's line in `radical --help`
+HELP = "run the streaming filter node over Zenoh"
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", action="append", required=True, metavar="V",
                    help="vehicle name [a-z0-9_-]+ (repeat to serve several vehicles)")

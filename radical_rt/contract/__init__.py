@@ -1,1 +1,2 @@
-"""The contract's conventions, flags, state layout, parameter tables and geometry (no kernels of the filter)."""
+"""The contract's conventions, flags, state layout, parameter tables, geometry and message schemas
+(no kernels of the filter)."""

@@ -1,1 +1,1 @@
-"""Checkpoints and transports (Zenoh, in-memory)."""
+"""Checkpoints, transports (Zenoh, in-memory), output paths and the MCAP archive layer."""

@@ -18,7 +18,7 @@ import numpy as np
 from tqdm import tqdm
 
 from radical_rt import __version__
-from replayer.archive import ArchiveWriter
+from radical_rt.io.archive import ArchiveWriter
 
 from .clock import jitter_clip_s
 from .scenario import Scenario, describe_truth, load_scenario

@@ -16,12 +16,15 @@ import argparse
 import json
 import sys
 
+from radical_rt.io.archive import ArchiveError
 from radical_rt.io.outpaths import output_file
-from replayer.archive import ArchiveError
 
 from .api import synthesize
 from .scenario import print_default
 from .schema import ScenarioError
+
+#: the subcommand's line in `radical --help`
+HELP = "synthesize a MESSENGER-like telemetry archive (MCAP)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -350,7 +350,7 @@ def make_processor(engine_cls=Engine, table=None, clock_mode: str = "reconstruct
 def run_archive(sp, path: str | Path):
     """Feed one archive's inputs through ``sp`` (the batch shell's loop, no output archive)."""
     from radical_rt.apps.batch import INPUTS
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
 
     with ArchiveReader(str(path)) as reader:
         for topic, _, data in reader.iter_raw(topics=list(INPUTS)):

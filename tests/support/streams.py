@@ -10,7 +10,7 @@ from pathlib import Path
 
 import msgpack
 
-from replayer.archive import ArchiveReader
+from radical_rt.io.archive import ArchiveReader
 from replayer.synth.api import synthesize
 
 INPUTS = ["/siru", "/st1", "/st2", "/temp"]

@@ -25,10 +25,13 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from radical_rt.apps.design import analysis
-from radical_rt.apps.design.constraints import Pointing, check
+from mission.design import analysis
+from mission.design.constraints import Pointing, check
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.io.outpaths import output_file
+
+#: the subcommand's line in `radical --help`
+HELP = "covariance analysis and optimization of a calibration maneuver"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -64,7 +67,7 @@ def _fail(msg: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from radical_rt.apps.design import plan as planmod
+    from mission.design import plan as planmod
     from replayer.synth.schema import ScenarioError
 
     if args.target_scale <= 0 or args.record_dt <= 0:
@@ -75,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                                          args.target_scale)
         pointing = Pointing(args.sun_axis, 1.0, args.sun_max_deg, args.exclusion_deg)
         if args.optimize:
-            from radical_rt.apps.design.optimize import run_cli
+            from mission.design.optimize import run_cli
             from radical_rt.contract.state import PARAM_GROUPS
             bad = set((args.groups or "b").split(",")) - set(PARAM_GROUPS)
             if bad:

@@ -10,7 +10,7 @@ up to A_xz during x and z slews; MESSENGER: 12° inside 0.85 AU), capped at 10°
 Search (seeded by construction, deterministic): a coarse grid over A_y ∈ {30, 60, 90}°, hold ∈
 {60, 120, 240} s, repeats ∈ {1, 2} and a final dwell ∈ {0, 900, 1800, 2700} s (the trackers keep
 averaging φ2 and the biases at rest), shortest first where it prunes; every candidate is checked against the pointing constraints
-(:func:`radical_rt.apps.design.constraints.check`) and the maximum duration, designed (cold, or after
+(:func:`mission.design.constraints.check`) and the maximum duration, designed (cold, or after
 the warm start + bump), and the shortest meeting every target is refined by bisection on the
 final dwell (4 steps). Progress is printed per candidate.
 """
@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radical_rt.apps.design import analysis
-from radical_rt.apps.design import plan as planmod
-from radical_rt.apps.design.constraints import check
+from mission.design import analysis
+from mission.design import plan as planmod
+from mission.design.constraints import check
 
 GRID_AY = (30.0, 60.0, 90.0)
 GRID_HOLD = (60.0, 120.0, 240.0)

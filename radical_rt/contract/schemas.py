@@ -10,7 +10,8 @@ properties, so a reader keeps ignoring fields it does not know. ``validate`` als
 Schema cannot express: the columns of a columnar message (``/siru``, ``/truth/siru_time``) have the
 same length k, and the ``dtheta`` rows all have the same length n.
 
-Only stdlib, numpy and jsonschema are imported (this is a leaf I/O module).
+Only stdlib, numpy and jsonschema are imported (a leaf module: the archive layer
+:mod:`radical_rt.io.archive`, the recorder and the Foxglove export use it).
 """
 
 from __future__ import annotations

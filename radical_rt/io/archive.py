@@ -1,21 +1,22 @@
 """MCAP archives of RADICAL-RT telemetry (CONTRACT.md §4): writing, reading, truncated-file recovery.
 
 Topics are the Zenoh topics with a leading slash; message encoding msgpack (data = the Zenoh
-payload); jsonschema schemas ``radical.<topic>`` (replayer.schemas); log_time = publish_time =
-round(t_bus·1e9) ns; metadata ``radical.scenario``. A leaf I/O layer (stdlib, numpy, msgpack, mcap).
+payload); jsonschema schemas ``radical.<topic>`` (:mod:`radical_rt.contract.schemas`); log_time =
+publish_time = round(t_bus·1e9) ns; metadata ``radical.scenario``. A leaf I/O layer (stdlib, numpy,
+msgpack, mcap, the contract's conventions and schemas) that the engine's batch shell, the simulator,
+replay/record and the monitors share; :mod:`radical_rt.io.archive_scan` holds the record-level
+scanning (a torn file's index, a chunk's messages).
 """
 
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import logging
 import math
 import numbers
 import operator
 import os
-import struct
 import time
 import warnings
 from collections import Counter
@@ -27,14 +28,18 @@ import numpy as np
 from mcap import records as mr
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_stream
-from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
 from radical_rt.contract.conventions import t_to_ns
-from replayer.schemas import SCHEMAS, schema_name
+from radical_rt.contract.schemas import SCHEMAS, schema_name
+from radical_rt.io.archive_scan import (
+    MAGIC,
+    RebuiltIndexReader,
+    chunk_messages,
+    one_line,
+    rebuild_summary,
+)
 
 log = logging.getLogger(__name__)
 _first = operator.itemgetter(0)
@@ -44,7 +49,6 @@ OUTPUT_TOPICS = ("/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag")
 TRUTH_TOPICS = ("/truth/attitude", "/truth/params", "/truth/siru_time")
 SCENARIO_METADATA = "radical.scenario"
 
-_MAGIC = b"\x89MCAP0\r\n"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, "": CompressionType.NONE}
 
@@ -55,11 +59,6 @@ class ArchiveError(Exception):
 
 class TruncatedArchiveWarning(UserWarning):
     """A truncated archive (no valid summary/footer) was read up to its tear."""
-
-
-def _one_line(e: BaseException) -> str:
-    text = " ".join(str(e).split())
-    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 def _np_default(obj: Any) -> Any:  # msgpack fallback: numpy arrays/scalars -> lists/scalars
@@ -96,7 +95,7 @@ class ArchiveWriter:
         except (OSError, McapError) as e:  # e.g. a missing directory, lz4 not installed
             if hasattr(self, "_file"):
                 self._file.close()
-            raise ArchiveError(f"{self.path}: cannot create archive: {_one_line(e)}") from None
+            raise ArchiveError(f"{self.path}: cannot create archive: {one_line(e)}") from None
         self._packer = msgpack.Packer(use_bin_type=True, default=_np_default)
         self._channels: dict[str, int] = {}
         self._seq: dict[int, int] = {}
@@ -171,25 +170,6 @@ class ArchiveWriter:
         self.close()
 
 
-def _parse_record(raw: bytes) -> Any:  # one complete record: opcode, length, body
-    return next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
-
-
-class _RebuiltIndexReader(SeekingReader):
-    """A SeekingReader over a file without summary, using a summary rebuilt by scanning it."""
-
-    def __init__(self, f: Any, summary: Summary, validate_crcs: bool) -> None:
-        f.seek(0)
-        super().__init__(f, validate_crcs=validate_crcs)
-        self._rebuilt = summary
-
-    def get_summary(self) -> Summary:
-        return self._rebuilt
-
-    def iter_messages(self, *args: Any, **kw: Any) -> Any:  # no chunks: nothing (never stream)
-        return super().iter_messages(*args, **kw) if self._rebuilt.chunk_indexes else iter(())
-
-
 class ArchiveReader:
     """Read an MCAP archive: metadata on open, then messages in log_time order.
 
@@ -216,7 +196,7 @@ class ArchiveReader:
             raise ArchiveError(f"{p}: cannot open: {e.strerror or e}") from None
         try:
             self._size = os.fstat(self._f.fileno()).st_size
-            if (magic := self._f.read(len(_MAGIC))) != _MAGIC:
+            if (magic := self._f.read(len(MAGIC))) != MAGIC:
                 what = "empty file" if self._size == 0 else f"bad magic bytes {magic!r}"
                 raise ArchiveError(f"{p}: not an MCAP archive ({what})")
             self._load()
@@ -224,12 +204,12 @@ class ArchiveReader:
             self._f.close()
             if isinstance(e, ArchiveError):
                 raise
-            raise ArchiveError(f"{p}: unreadable MCAP archive: {_one_line(e)}") from e
+            raise ArchiveError(f"{p}: unreadable MCAP archive: {one_line(e)}") from e
 
     def _load(self) -> None:
         f, summary, footer_ok = self._f, None, False
-        f.seek(max(self._size - len(_MAGIC), 0))
-        if self._size >= 2 * len(_MAGIC) + 29 and f.read() == _MAGIC:  # 29: footer record
+        f.seek(max(self._size - len(MAGIC), 0))
+        if self._size >= 2 * len(MAGIC) + 29 and f.read() == MAGIC:  # 29: footer record
             f.seek(0)
             self._reader = SeekingReader(f, validate_crcs=self._validate_crcs)
             try:
@@ -237,8 +217,8 @@ class ArchiveReader:
             except Exception:  # torn or corrupt footer/summary: rebuild below
                 pass
         if summary is None:
-            summary, torn = self._rebuild_summary()
-            self._reader = _RebuiltIndexReader(f, summary, self._validate_crcs)
+            summary, torn, self._good_bytes = rebuild_summary(f, self._size)
+            self._reader = RebuiltIndexReader(f, summary, self._validate_crcs)
             torn = torn or (None if footer_ok else "no valid summary/footer after the data")
             if torn is not None:
                 self.truncated, n = True, summary.statistics.message_count  # type: ignore[union-attr]
@@ -271,56 +251,6 @@ class ArchiveReader:
             if md.name == SCENARIO_METADATA:
                 self.scenario.update(md.metadata)
 
-    def _rebuild_summary(self) -> tuple[Summary, str | None]:
-        """Stream the records up to the end of the data section or the tear; returns the summary
-        rebuilt from what is readable and why reading stopped early (None: data complete)."""
-        f, size, pos, s = self._f, self._size, len(_MAGIC), Summary()
-        counts: Counter[int] = Counter()
-        torn: str | None = "no summary/footer"
-        while pos + 9 <= size:
-            f.seek(pos)
-            head = f.read(9)
-            opcode, length = struct.unpack("<BQ", head)
-            end = pos + 9 + length
-            if end > size:
-                torn = f"record at byte {pos} torn at byte {size}"
-                break
-            if opcode in (Opcode.DATA_END, Opcode.FOOTER):
-                pos, torn = end, None
-                break
-            if opcode in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA):
-                try:
-                    rec = _parse_record(head + f.read(length))
-                    inner = breakup_chunk(rec, validate_crc=True) if isinstance(rec, mr.Chunk) else [rec]
-                except Exception as e:  # any parse/CRC failure marks the tear
-                    torn = f"unreadable record at byte {pos}: {_one_line(e)}"
-                    break
-                times, cids = [], {}
-                for r in inner:
-                    if isinstance(r, mr.Message) and r.channel_id in s.channels:
-                        counts[r.channel_id] += 1
-                        times.append(r.log_time)
-                        cids[r.channel_id] = 0
-                    elif isinstance(r, mr.Schema | mr.Channel):
-                        getattr(s, "schemas" if isinstance(r, mr.Schema) else "channels")[r.id] = r
-                    elif isinstance(r, mr.Metadata):
-                        s.metadata_indexes.append(mr.MetadataIndex(pos, end - pos, r.name))
-                if times and isinstance(rec, mr.Chunk):
-                    s.chunk_indexes.append(mr.ChunkIndex(
-                        chunk_length=end - pos, chunk_start_offset=pos, compression=rec.compression,
-                        compressed_size=len(rec.data), message_end_time=max(times),
-                        message_index_length=0, message_index_offsets=cids,
-                        message_start_time=min(times), uncompressed_size=rec.uncompressed_size))
-            pos = end
-        if torn is not None and pos + 9 > size > pos:
-            torn = f"torn record header at byte {pos}"
-        self._good_bytes, ci = pos, s.chunk_indexes
-        s.statistics = mr.Statistics(0, len(s.channels), counts, len(ci), sum(counts.values()),
-                                     max((c.message_end_time for c in ci), default=0),
-                                     min((c.message_start_time for c in ci), default=0),
-                                     len(s.metadata_indexes), len(s.schemas))
-        return s, torn
-
     def require_inputs(self) -> None:
         """Raise ArchiveError unless there are ``/siru`` and ``/st1`` or ``/st2`` messages."""
         if not self.message_counts.get("/siru"):
@@ -343,7 +273,7 @@ class ArchiveReader:
                     topics=tset, starting_at=start_ns, ending_before=end_ns):
                 yield ch.topic, m.log_time, m.data
         except Exception as e:
-            raise ArchiveError(f"{self.path}: cannot read messages: {_one_line(e)}") from e
+            raise ArchiveError(f"{self.path}: cannot read messages: {one_line(e)}") from e
 
     def _ordered_chunks(self) -> list[mr.ChunkIndex] | None:
         """The chunk indexes in file order when their time ranges do not overlap, else None. Then
@@ -366,7 +296,7 @@ class ArchiveReader:
                 continue
             self._f.seek(c.chunk_start_offset + 1 + 8)  # opcode, record length
             chunk = mr.Chunk.read(ReadDataStream(self._f))
-            msgs = _chunk_messages(chunk, self._validate_crcs, want, topic_of)
+            msgs = chunk_messages(chunk, self._validate_crcs, want, topic_of)
             msgs.sort(key=_first)
             for t, topic, data in msgs:
                 if lo <= t < hi:
@@ -381,7 +311,7 @@ class ArchiveReader:
                 msg = msgpack.unpackb(data, raw=False, strict_map_key=False)
             except Exception as e:
                 raise ArchiveError(f"{self.path}: {topic} at log_time {t} ns: undecodable "
-                                   f"msgpack payload: {_one_line(e)}") from None
+                                   f"msgpack payload: {one_line(e)}") from None
             yield topic, t, msg
 
     def close(self) -> None:
@@ -392,30 +322,6 @@ class ArchiveReader:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-_RECORD = struct.Struct("<BQ")  # opcode, content length
-_MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log_time, publish_time
-
-
-def _chunk_messages(chunk: mr.Chunk, validate_crc: bool, want: set[int],
-                    topic_of: dict[int, str]) -> list[tuple[int, str, bytes]]:
-    """``(log_time, topic, data)`` of the message records of a chunk whose channel is in
-    ``want``, in file order. The chunk is decompressed (and its CRC checked) by the mcap library;
-    the records are split here with :mod:`struct` (the library's record objects cost more than
-    the rest of the batch read)."""
-    stream, n = get_chunk_data_stream(chunk, validate_crc=validate_crc)
-    buf = stream.read(n)
-    out, pos, op_message = [], 0, int(Opcode.MESSAGE)
-    while pos < n:
-        op, length = _RECORD.unpack_from(buf, pos)
-        pos += 9
-        if op == op_message:
-            cid, _seq, log_time, _pub = _MESSAGE.unpack_from(buf, pos)
-            if cid in want:
-                out.append((log_time, topic_of[cid], buf[pos + 22:pos + length]))
-        pos += length
-    return out
 
 
 def read_scenario(path: str | os.PathLike[str]) -> dict[str, str]:

@@ -1,7 +1,8 @@
 """From a scenario (built-in name or TOML, the format `radical synth` runs) to a design run.
 
 ``replayer.synth`` (the maneuver model: exact truth attitude and rates) is imported lazily inside
-the functions, so ``radical_rt`` does not import ``replayer`` at module level.
+the functions: loading the simulator (its archive writer, its compiled code) is left to the runs
+that need a scenario, not to ``radical --help`` or the covariance code.
 """
 
 from __future__ import annotations
@@ -9,8 +10,8 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 
-from radical_rt.apps.design.constraints import Pointing, tracker_visibility
-from radical_rt.apps.design.covariance import History, Plan, clock_lock_s, new_engine, run_plan
+from mission.design.constraints import Pointing, tracker_visibility
+from mission.design.covariance import History, Plan, clock_lock_s, new_engine, run_plan
 
 
 def load(spec, duration: float | None = None):

@@ -7,7 +7,7 @@
    recorder cleanly (SIGINT), writes the summary file and `radical report` of the recording;
 5. prints the paper-style table (estimate ± 1σ, truth, error/σ) and where everything is.
 
-Usage: ``python -m radical_rt.apps.demo [--out DIR] [--duration S] [--seed N] [--port P]``.
+Usage: ``python -m mission.demo [--out DIR] [--duration S] [--seed N] [--port P]``.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def _end_stream(endpoint: str, timeout: float = 600.0) -> dict:
 
 def _truth(sim: Path) -> dict | None:
     from radical_rt.apps.batch import truth_paper_units
-    from replayer.archive import ArchiveReader
+    from radical_rt.io.archive import ArchiveReader
     last = None
     with ArchiveReader(str(sim)) as r:
         for _t, _ns, msg in r.iter_messages(topics=["/truth/params"]):
