@@ -75,10 +75,9 @@ class Run:
         self.wall = 0.0
 
     def fork(self) -> Run:
-        """An exact copy to continue with other data (the engine's clock source is re-bound)."""
-        other = copy.deepcopy(self)
-        other.sp.engine.timing_sigma_source = lambda: other.sp.clock.tag_error_sigma_s
-        return other
+        """An exact copy to continue with other data (the copy's engine has the copy's processor
+        as its hooks: deepcopy keeps the references within the copied object graph)."""
+        return copy.deepcopy(self)
 
     def feed(self, topic: str, data: bytes) -> None:
         if topic in TRUTH:

@@ -11,7 +11,7 @@ filter loop then waited to get it back. With Zenoh callback threads in the node 
 was measured to cost about a sixth of the node's capacity (perf/README.md).
 
 **Stale caches.** Numba keys a cached kernel on its own source file only. A kernel that calls
-kernels of other modules (``fastpath.fast_release`` calls into ``propagate``, ``timeupdate``,
+kernels of other modules (``loop.run_release`` calls into ``propagate``, ``timeupdate``,
 ``updates``, ``ud``, ``model``…) embeds their machine code, and after an edit of one of those
 modules it went on running the *old* callee from its cache while direct callers ran the new one.
 :func:`_drop_stale_cache` therefore treats the cached kernels of a source directory as one unit:
@@ -116,7 +116,7 @@ ERR_NONFINITE = 3  # a NaN or Inf in an input
 
 def inline_kernel(fn):
     """:func:`kernel` inlined into its callers at Numba IR level (``inline='always'``): for the
-    helpers of :mod:`radical_rt.engine.fastpath` that take the tuple of engine arrays, whose reference
+    helpers of :mod:`radical_rt.engine.loop` that take the tuple of engine arrays, whose reference
     counting per call would otherwise cost more than their arithmetic."""
     _drop_stale_cache(fn.__code__.co_filename)
     return njit(inline="always", **_POLICY)(fn)

@@ -1,4 +1,4 @@
-"""The engine's compiled loop (radical_rt/engine/fastpath.py) against the Python oracle of its steps
+"""The engine's compiled loop (radical_rt/engine/loop.py) against the Python oracle of its steps
 (tests/oracles/reference_engine.py).
 
 The two must give bit-identical results: same output messages byte for byte, same final UD
@@ -21,7 +21,7 @@ import pytest
 from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.contract.params import ParamTable
-from radical_rt.engine import fastpath
+from radical_rt.engine import loop
 from support.streams import damaged, input_messages, make_archive
 from tests.oracles.dense_engine import make_processor as dense_make_processor
 from tests.oracles.reference_engine import ReferenceEngine
@@ -67,8 +67,8 @@ def test_nominal_stream_is_bit_identical(nominal, consider, monkeypatch):
     timing term, as Schmidt consider updates (default) or, with the consider threshold raised,
     as plain correlated updates."""
     calls = []
-    kernel = fastpath.fast_release
-    monkeypatch.setattr(fastpath, "fast_release", lambda *a: (calls.append(1), kernel(*a))[1])
+    kernel = loop.run_release
+    monkeypatch.setattr(loop, "run_release", lambda *a: (calls.append(1), kernel(*a))[1])
     sp, out = assert_same(nominal, None if consider else {"timing_consider_s": 1.0})
     c = sp.engine.counters
     # the run exercised what the fast path hands back to Python and what it does itself
@@ -110,7 +110,6 @@ def test_deep_copy_continues_bit_identically(nominal):
     half = len(nominal) // 2
     _, sp = run(nominal[:half], True)
     twin = copy.deepcopy(sp)
-    twin.engine.timing_sigma_source = lambda: twin.clock.tag_error_sigma_s
     e, t = sp.engine, twin.engine
     assert not np.shares_memory(e.U, t.U) and np.shares_memory(t.U, t._fb)
     for topic, _ns, data in nominal[half:]:

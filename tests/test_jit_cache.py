@@ -89,4 +89,4 @@ def test_kernels_in_subpackages_are_one_unit(tmp_path, monkeypatch):
     assert _jit._fingerprint(tmp_path) != before
     # the real package: every kernel module of radical_rt, wherever it lives, is covered
     pkg = {p.name for p in _jit._kernel_sources(_jit._PACKAGE)}
-    assert {"fastpath.py", "propagate.py", "clock_layout.py", "layout.py"} <= pkg
+    assert {"loop.py", "steps.py", "propagate.py", "clock_layout.py", "layout.py"} <= pkg

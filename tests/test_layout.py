@@ -9,7 +9,7 @@ import pytest
 
 from radical_rt.clock import clock_layout
 from radical_rt.contract.layout import Fields
-from radical_rt.engine import fastpath_layout
+from radical_rt.engine import loop_layout
 from radical_rt.stream import stream_layout
 
 
@@ -91,17 +91,17 @@ def test_stream_layout_constants_are_the_table():
     assert tq.ss.shape == (S.SS.end,) and tq.si.shape == (S.SI.end,)
 
 
-def test_fastpath_layout_constants_are_the_table():
-    F = fastpath_layout
+def test_loop_layout_constants_are_the_table():
+    F = loop_layout
     _constants(F, "CFG_", F.CFG)
     _constants(F, "IO_", F.IO)
     _constants(F, "CNT_", F.CNT)
     assert F.IO_LAST_ST + 1 == F.IO_LAST_ST1 and F.IO_LAST_ST + 2 == F.IO_LAST_ST2
     from radical_rt.engine.filter import Engine
     eng = Engine()
-    assert not F.CFG.check(eng._fast_cfg) and eng._fast_cfg.shape == (F.CFG.end,)
-    assert not F.IO.check(eng._fast_io) and not F.CNT.check(eng._fast_cnt)
-    cfg = F.CFG.unpack(eng._fast_cfg)
+    assert not F.CFG.check(eng._cfg) and eng._cfg.shape == (F.CFG.end,)
+    assert not F.IO.check(eng._io) and not F.CNT.check(eng._cnt)
+    cfg = F.CFG.unpack(eng._cfg)
     assert cfg["n_gyro"] == eng.n_gyro and cfg["prop_window"] == eng.si.prop_window
     assert cfg["phi_p"] == cfg["phi_col"] - 3 and cfg["lat_p"] == cfg["lat_col"] - 3
 

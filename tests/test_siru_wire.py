@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radical_rt.engine.filter import Engine
 from radical_rt.stream.packets import InputError, decode_siru, unpack
 from radical_rt.stream.processor import StreamProcessor
 from radical_rt.stream.siru_wire import SiruWire
@@ -176,7 +175,7 @@ def test_corrupted_payloads_never_accepted_differently():
 
 def test_stream_counts_a_rejected_message_as_before():
     """Through the stream processor: a NaN batch is rejected with its reason, state untouched."""
-    sp = StreamProcessor(Engine())
+    sp = StreamProcessor()
     sp.feed("siru", msgpack.packb(_ok_map(dtheta=[[0.1] * 4, [math.nan] * 4])))
     assert dict(sp.rejected) == {"nonfinite": 1}
     assert len(sp.gyro_q) == 0 and sp.clock.counters.get("samples", 0) == 0

@@ -244,9 +244,8 @@ def test_intake_refusals_change_nothing():
 def test_stream_grows_the_queue_for_waiting_samples(as_map):
     """Tracker samples with no gyro data yet pile up: the stream grows a one-row queue as needed,
     whether the compiled intake (bytes) or the general path (maps) takes them."""
-    from radical_rt.engine.filter import Engine
     from radical_rt.stream.processor import StreamProcessor
-    sp = StreamProcessor(Engine(), reorder_slack_s=1e4)  # nothing becomes due
+    sp = StreamProcessor(reorder_slack_s=1e4)  # nothing becomes due
     sp.tracker_q = TrackerQueue(capacity=1)
     sp.begin_stream()
     for k in range(40):

@@ -28,7 +28,7 @@ own equations. The noise enters only through the noise model of the table (``arw
 The SIRU clock is not simulated: the time line's 1σ ``σ_t`` is modelled as ``sigma_unlocked_s``
 before ``lock_s`` (the clock's second sawtooth wrap after a cold start, its first after a warm
 start that keeps the frequency, see :func:`clock_lock_s`) and ``sigma_locked_s`` after it, read by
-the engine through ``timing_sigma_source`` (the consider rule of docs/engine.md §3.3).
+the engine through its hooks, :class:`PlanClock` (the consider rule of docs/engine.md §3.3).
 
 Outputs are SI: σ of the CONTRACT parameters (npar = 5n + 3 + 1 incl. the latency state) over
 time, and the final parameter covariance (contract coordinates).
@@ -170,12 +170,34 @@ def tracker_events(plan: Plan, geo) -> types.SimpleNamespace:
                                  out_i=np.zeros((len(f), 4), np.int64))
 
 
+class PlanClock:
+    """The engine's hooks in a covariance analysis (radical_rt.engine.hooks): the σ of the gyro
+    time line of the plan being run (:meth:`follow`), before and after the clock locks; no
+    outputs."""
+
+    def __init__(self) -> None:
+        self.lock_t, self.sigma_unlocked_s, self.sigma_locked_s = math.inf, 0.0, 0.0
+
+    def follow(self, plan: Plan) -> None:
+        """Model the time line of ``plan`` from now on."""
+        self.lock_t = plan.t0 + plan.lock_s
+        self.sigma_unlocked_s, self.sigma_locked_s = plan.sigma_unlocked_s, plan.sigma_locked_s
+
+    def timing_sigma(self, t: float) -> float:
+        return self.sigma_locked_s if t >= self.lock_t else self.sigma_unlocked_s
+
+    def wake(self) -> tuple[float, float]:
+        return math.inf, math.inf
+
+    def on_window(self, t: float) -> None:
+        return None
+
+
 def new_engine(table=None) -> Engine:
     """A cold-started engine as ``radical process`` makes it, without the FDI (no faults to find
-    in noise-free data; it never changes the covariance of a healthy run)."""
-    e = Engine(table)
-    e.fdi = None
-    return e
+    in noise-free data; it never changes the covariance of a healthy run), whose time line is
+    the plan's (:class:`PlanClock`; :func:`run_plan` points it at each plan)."""
+    return Engine(table, hooks=PlanClock(), fdi=False)
 
 
 def run_plan(plan: Plan, engine: Engine, record_dt: float = 10.0, chunk_s: float = 0.5,
@@ -191,9 +213,9 @@ def run_plan(plan: Plan, engine: Engine, record_dt: float = 10.0, chunk_s: float
     w0 = time.perf_counter()
     arrays, _n = gyro_samples(plan, engine.geo.W)
     tq = tracker_events(plan, engine.geo)
-    lock_t = plan.t0 + plan.lock_s
-    engine.timing_sigma_source = (
-        lambda: plan.sigma_locked_s if engine.t >= lock_t else plan.sigma_unlocked_s)
+    if not isinstance(engine.hooks, PlanClock):
+        raise TypeError("run_plan needs an engine made by new_engine (its hooks model the clock)")
+    engine.hooks.follow(plan)
     t_g, epochs = arrays[0], tq.ev_f[:, 0]
     n_chunks = max(1, int(math.ceil(plan.duration_s / chunk_s)))
     every = max(1, int(round(record_dt / chunk_s)))
@@ -214,6 +236,5 @@ def run_plan(plan: Plan, engine: Engine, record_dt: float = 10.0, chunk_s: float
         engine.flush_parity()
     sig[-1] = engine.contract_sigma()
     _, cov = engine.contract_params()
-    engine.timing_sigma_source = None
     return History(np.asarray(ts), np.asarray(sig), cov, dict(engine.counters),
                    time.perf_counter() - w0)

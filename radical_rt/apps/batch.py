@@ -24,7 +24,6 @@ from radical_rt.contract.conventions import PAPER_UNITS, to_paper_units
 from radical_rt.contract.paper_table import format_table, rows
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.contract.state import PARAM_GROUPS
-from radical_rt.engine.filter import Engine
 from radical_rt.io.archive import ArchiveError, ArchiveReader, ArchiveWriter
 from radical_rt.io.outpaths import OutputPathError, output_file, prepare_output
 from radical_rt.stream.processor import StreamProcessor
@@ -36,10 +35,10 @@ INPUTS = ("/siru", "/st1", "/st2", "/temp")
 def make_processor(table: ParamTable | None = None, clock_mode: str = "reconstruct",
                    packets_path: str | None = None) -> StreamProcessor:
     """An engine + clock + stream processor configured as both shells use it."""
-    engine = Engine(table or ParamTable())
-    clock = SiruClock(ClockConfig(mode=clock_mode), n_gyro=engine.n_gyro)
+    table = table or ParamTable()
+    clock = SiruClock(ClockConfig(mode=clock_mode), n_gyro=table.n_gyro)
     packets = load_packets(packets_path) if packets_path else None
-    return StreamProcessor(engine, clock, packets)
+    return StreamProcessor(table, clock, packets)
 
 
 def process(inputs: list[str], out_path: str | None, summary_path: str | None = None, *,

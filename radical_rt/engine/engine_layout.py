@@ -5,7 +5,7 @@ and writes, in which buffer, with which rank.
 ``fb``, int64 ``ib``, bool ``bb``) plus a layout array ``lay`` (k, 4) of offset, rows, columns and
 buffer per array, so that a compiled call takes four arguments instead of 46. From :data:`SLOTS`
 follow: the packing order and the dtype and rank checks (``EngineState._pack``), the position of
-each array in the tuple ``E`` of :mod:`radical_rt.engine.fastpath` (:data:`E_INDEX`, ``E_*`` constants),
+each array in the tuple ``E`` of :mod:`radical_rt.engine.loop` (:data:`E_INDEX`, ``E_*`` constants),
 and the compiled :func:`unpack` itself, whose source is generated from the table (one ``_v1`` or
 ``_v2`` view per slot), so that no position is written by hand.
 """

@@ -12,7 +12,7 @@ follow (joint χ² edit test, then scalar Bierman updates). The correction is th
 attitude quaternion and the parameters. The parity (null-space) measurement is a sum over
 ``parity_window`` samples kept as sufficient statistics and processed ``parity_lag_s`` later,
 linearized about the estimate of that time. All of it runs compiled, in one call per release
-(:mod:`radical_rt.engine.fastpath`, steps in :mod:`radical_rt.engine.steps`); this class
+(:mod:`radical_rt.engine.loop`, steps in :mod:`radical_rt.engine.steps`); this class
 configures it, runs the window hook and the commands (starts, bumps, isolation), and reports.
 
 The gyro parameters are estimated in the internal *linear* form of :mod:`radical_rt.kernels.model` (scaled
@@ -33,24 +33,31 @@ from radical_rt.contract.params import ParamTable, to_si
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
 from radical_rt.engine.engine_state import EngineState
 from radical_rt.engine.excitation import ExcitationMonitor
-from radical_rt.engine.fastpath import (
+from radical_rt.engine.hooks import EngineHooks, NoHooks
+from radical_rt.engine.loop import (
     EV_BEGIN_ATTITUDE_INIT,
     EV_FLUSH,
     EV_NUMERIC,
     EV_RESET_PARITY,
 )
-from radical_rt.engine.fastpath_glue import FastRelease
+from radical_rt.engine.shell import LoopShell
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import fold_correction, refresh_axes
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
 
 
-class Engine(FastRelease, EngineState):
+class Engine(LoopShell, EngineState):
     """The 3 + 5n + 3 state UD-factorized RADICAL filter (n gyros, ST1 reference, ST2 relative)."""
 
-    def __init__(self, table: ParamTable | None = None, geometry: Geometry | None = None) -> None:
+    def __init__(self, table: ParamTable | None = None, geometry: Geometry | None = None, *,
+                 hooks: EngineHooks | None = None, fdi: bool = True,
+                 excitation: bool = True) -> None:
+        """table: parameter tables (defaults); geometry: the SIRU and tracker geometry (nominal);
+        hooks: the process driving the engine (radical_rt.engine.hooks; NoHooks by default);
+        fdi: run the parity FDI (docs/fdi.md); excitation: run the excitation monitor."""
         geometry = geometry or Geometry()
+        self.hooks: EngineHooks = NoHooks()  # the given hooks once the engine is built
         super().__init__(StateLayout(geometry.n_gyro, latency=True), geometry)
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
         self._phi_col, self._lat_col = self.layout["phi2"].start, self.layout["lat"].start
@@ -61,9 +68,13 @@ class Engine(FastRelease, EngineState):
         self.params_changed()
         self._pack()
         self.cold_start()
-        self.fdi = FaultMonitor()  # parity FDI (docs/fdi.md); None disables the hooks
-        self.excitation = ExcitationMonitor(  # radical_rt.engine.excitation; None: off
-            self.layout, triads=(geometry.W, geometry.U, geometry.V))
+        #: the parity FDI (radical_rt.fdi.monitor; None: off) and the excitation monitor
+        #: (radical_rt.engine.excitation; None: off)
+        self.fdi: FaultMonitor | None = FaultMonitor() if fdi else None
+        self.excitation: ExcitationMonitor | None = ExcitationMonitor(
+            self.layout, triads=(geometry.W, geometry.U, geometry.V)) if excitation else None
+        if hooks is not None:
+            self.hooks = hooks
 
     # ---------------------------------------------------------------- configuration
     def params_changed(self) -> None:
@@ -76,7 +87,7 @@ class Engine(FastRelease, EngineState):
         for name, value in new.items():  # in place (the arrays may be packed, EngineState._pack)
             getattr(self, name)[...] = value
         self._size_parity_queue()
-        self._fast_config()
+        self._loop_config()
 
     def _size_parity_queue(self) -> None:
         """Room in the parity queue for every sum of a lag (a sum every parity_window samples, at
@@ -206,25 +217,18 @@ class Engine(FastRelease, EngineState):
 
     # ---------------------------------------------------------------- hooks and bookkeeping
     def timing_sigma(self) -> float:
-        """1σ [s] of the gyro time line at the latest sample (the SIRU clock reconstruction), used
-        to add (ω̂·σ_t)² along the rate to the tracker noise; 0 without a source."""
-        src = self.timing_sigma_source
-        if src is None:
-            return 0.0
-        sig = float(src())
+        """1σ [s] of the gyro time line at the latest sample (the hooks': the SIRU clock
+        reconstruction), used to add (ω̂·σ_t)² along the rate to the tracker noise; 0 when the
+        hooks give no finite positive value."""
+        sig = float(self.hooks.timing_sigma(self.t))
         return sig if math.isfinite(sig) and sig > 0.0 else 0.0
 
     def locked_now(self) -> bool:
         """Whether the time line is locked now (σ_t ≤ timing_consider_s: the updates calibrate)."""
         return self.timing_sigma() <= self.si.timing_consider_s
 
-    timing_sigma_source = None  # callable() → s, e.g. lambda: clock.tag_error_sigma_s
-
-    listener = None  # callable(t) run after every window close (the stream's output scheduler)
-
-    fdi = None  # radical_rt.fdi.monitor.FaultMonitor: hooks on gyro, tracker, parity and window events
-
-    excitation = None  # radical_rt.engine.excitation.ExcitationMonitor (None: off)
+    fdi = None  # (class defaults for the start-up, before __init__ sets them)
+    excitation = None
 
     def _update_done(self, kind: str, innov, sig, nis: float, edited: bool) -> bool:
         """Diagnostics and counters of one tracker update the kernel ran."""
@@ -311,7 +315,7 @@ class Engine(FastRelease, EngineState):
         """The window hook (after a close where the compiled loop stops for it; t the event time
         [s]): a parity sum queued since the last hook goes to the FDI's detector and, every 10 s,
         the excitation monitor looks at the covariance; then the FDI's bookkeeping and
-        decisions, the mode and flags, and the listener (the stream's outputs)."""
+        decisions, the mode and flags, and the hooks' window hook (the stream's outputs)."""
         pending, self._sum_pending = self._sum_pending, None
         if pending is not None:
             if self.fdi is not None:
@@ -323,8 +327,7 @@ class Engine(FastRelease, EngineState):
         if self.fdi is not None:
             self.fdi.on_window(self, t)
         self.update_mode(t)
-        if self.listener is not None:
-            self.listener(t)
+        self.hooks.on_window(t)
 
 
 __all__ = ["Engine", "PARAM_GROUPS"]

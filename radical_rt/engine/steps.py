@@ -2,9 +2,9 @@
 numeric-fault recovery, the window close with its parity sums, and the correction fold.
 
 Every function takes the array tuple ``E`` (:func:`radical_rt.engine.engine_layout.unpack`) and
-the small arrays ``cfg``, ``io``, ``cnt`` of :mod:`radical_rt.engine.fastpath_layout`, and is
-called by the release loop of :mod:`radical_rt.engine.fastpath` (and by
-:func:`radical_rt.engine.fastpath.engine_event`, through which Python runs the same steps for
+the small arrays ``cfg``, ``io``, ``cnt`` of :mod:`radical_rt.engine.loop_layout`, and is
+called by the release loop of :mod:`radical_rt.engine.loop` (and by
+:func:`radical_rt.engine.loop.engine_event`, through which Python runs the same steps for
 commands). The small ones are inlined; the rare or long ones (a close at 10 Hz, a parity sum a
 second, resets) are compiled once as functions of their own, which keeps the loop's compile time
 short. These are the only implementations of these steps; docs/engine.md §2 lists them.
@@ -20,7 +20,7 @@ import numpy as np
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_layout import E_INDEX
-from radical_rt.engine.fastpath_layout import (
+from radical_rt.engine.loop_layout import (
     CFG_ARW_VAR,
     CFG_ATT_INIT_SCALE,
     CFG_EDIT,
@@ -64,7 +64,7 @@ from radical_rt.kernels.ud import reset_leading_block, variances
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 
 NUMERIC_GEOMETRY = -1  # cnt[CNT_NUMERIC_CODE] of a singular sense-axis geometry (else a UD status)
-MODE_INIT, MODE_CONVERGING = -1.0, 0.0  # io[IO_MODE] codes set here (fastpath has the others)
+MODE_INIT, MODE_CONVERGING = -1.0, 0.0  # io[IO_MODE] codes set here (loop has the others)
 _NUMERIC, _GYRO_GAP = int(Flag.NUMERIC), int(Flag.GYRO_GAP)
 
 _EXCLUDED, _XP, _Q, _A = E_INDEX["excluded"], E_INDEX["xp"], E_INDEX["q"], E_INDEX["A"]

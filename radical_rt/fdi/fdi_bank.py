@@ -453,7 +453,7 @@ def decision_due(ll, nis, thr, k, llr_min):
 def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax):
     """One valid tracker sample (q_meas (4,) q_st_from_inertial, n_stars, epoch [s], mounting
     R_nom (3, 3), use_phi (ST2), σ_t [s] of the time line) for the running bank inside the
-    compiled release (radical_rt.engine.fastpath.fast_release): :func:`bank_step` with the bank's
+    compiled release (radical_rt.engine.loop.run_release): :func:`bank_step` with the bank's
     arrays bk (HypothesisBank.kernel_args: the gyro history blocks, the bank state and work,
     phi (3,), st_sigma (3,), thr (K,), bi int64 (8,) BI_*, bf float64 (5,) BF_*) and the engine's
     geometry W, U_ax, V_ax; bi[BI_K] and bi[BI_STEPS] += 1, bi[BI_BAD] += the hypotheses whose S

@@ -191,7 +191,7 @@ class HypothesisBank:
     # ------------------------------------------------------------------ inside the compiled release
     def kernel_args(self, eng, gbuf, hist_end: int, rows: int, llr_min: float) -> tuple:
         """The tuple bk of :func:`radical_rt.fdi.fdi_bank.bank_sample` (the compiled release runs the
-        bank on its valid tracker samples, see radical_rt.engine.fastpath): the gyro history's blocks
+        bank on its valid tracker samples, see radical_rt.engine.loop): the gyro history's blocks
         (rows gbuf.i0..hist_end−1 in use by then; the release appends its samples first), the
         stacked state and work arrays, phi, st_sigma, the consistency thresholds for up to
         ``rows`` more samples, and the controls bi, bf (BI_*, BF_*; BI_STEPS, BI_BAD zeroed).

@@ -61,7 +61,7 @@ BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alar
 # outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
 CHECK_MAX_S = 2.0
 QUIET_SUMS = 60  # parity sums without any exceedance before PARITY_ALARM clears
-WAKE_EARLY_S = 1e-6  # the fast path wakes the hook this much before a time-gated bank check
+WAKE_EARLY_S = 1e-6  # the compiled loop wakes the hook this much before a time-gated bank check
 
 
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
@@ -183,8 +183,8 @@ class FaultMonitor:
         self.flagged_only.discard(int(gyro))
 
     def wake_time(self) -> float:
-        """Engine time from which :meth:`on_window` has work: the engine's compiled fast path
-        skips the hook before it (radical_rt.engine.fastpath). −inf after a parity sum, or during an
+        """Engine time from which :meth:`on_window` has work: the engine's compiled loop
+        skips the hook before it (radical_rt.engine.loop). −inf after a parity sum, or during an
         alarm without a bank. While a bank runs, its decision changes only with a tracker sample
         (:meth:`wake_on_tracker`) or at the times of :meth:`_bank_wake`."""
         if self._sum_seen or (self.state == "alarm" and self.bank is None):
@@ -198,7 +198,7 @@ class FaultMonitor:
 
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker
-        samples and hand over only when its decision is due (radical_rt.engine.fastpath; docs/fdi.md
+        samples and hand over only when its decision is due (radical_rt.engine.loop; docs/fdi.md
         §7): a compiled bank, caught up with the tracker buffer, past the window of its alarm
         (where the decision is held); ``in_release`` False on a bank class
         keeps it in the hook (the oracle, the benchmark's rows). Between two tracker samples :meth:`on_window` then only

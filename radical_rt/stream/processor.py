@@ -23,6 +23,7 @@ import numpy as np
 
 from radical_rt.clock.siru_clock import ClockConfig, SiruClock
 from radical_rt.contract.flags import Flag, flag_names
+from radical_rt.contract.params import ParamTable
 from radical_rt.engine.filter import Engine
 from radical_rt.engine.gyro_queue import GyroQueue, predict_pending
 from radical_rt.stream.input_guard import TimeJump
@@ -68,10 +69,15 @@ class StreamProcessor(StreamGuards):
     The input sanity rules (time window, jumps, tracker conflicts, losses) and their settings
     are those of :class:`radical_rt.stream.stream_guard.StreamGuards` (docs/node.md, "Time sanity")."""
 
-    def __init__(self, engine: Engine, clock: SiruClock | None = None,
+    def __init__(self, table: ParamTable | None = None, clock: SiruClock | None = None,
                  packets: dict[str, PacketSpec] | None = None, reorder_slack_s: float = 0.05,
-                 diag_period_s: float = 1.0, reject_hold_s: float = 1.0, **guard) -> None:
-        self.engine = engine
+                 diag_period_s: float = 1.0, reject_hold_s: float = 1.0, *,
+                 engine_type: type[Engine] = Engine, **guard) -> None:
+        """table: the engine's parameter tables; clock: the SIRU clock reconstruction (default
+        configuration); packets: telemetry packets (defaults); engine_type: the engine class,
+        built here with this processor as its hooks (radical_rt.engine.hooks: the clock's σ of
+        the time line, the output wake times, the window hook); the rest: docs/node.md."""
+        engine = self.engine = engine_type(table, hooks=self)
         self.clock = clock or SiruClock(ClockConfig(), n_gyro=engine.n_gyro)
         self.packets = packets or default_packets()
         self.reorder_slack_s, self.reject_hold_s = reorder_slack_s, reject_hold_s
@@ -88,10 +94,6 @@ class StreamProcessor(StreamGuards):
         self._pred = np.zeros(9)  # the release kernel's prediction for sample packets (now())
         self.streams = StreamLog()  # stream index (``stream`` of every output) and records
         self.begin_stream()
-        engine.listener = self._on_window
-        engine.wake_source = self._wake
-        # the clock's reconstruction uncertainty enters the tracker noise as (ω̂·σ_t)²
-        engine.timing_sigma_source = lambda: self.clock.tag_error_sigma_s
 
     # ---------------------------------------------------------------- input side
     def begin_stream(self) -> None:
@@ -336,10 +338,15 @@ class StreamProcessor(StreamGuards):
         out.update(self._guard_counters())
         return out
 
-    def _wake(self) -> tuple[float, float]:
-        """For the engine's fast path (:mod:`radical_rt.engine.fastpath`): the event time and the engine
-        time from which :meth:`_on_window` has work while the engine's flags stay the same
-        (−inf: now). Earlier is always safe (the hook then finds nothing to do)."""
+    # ---------------------------------------------------------------- the engine's hooks
+    def timing_sigma(self, t: float) -> float:
+        """The clock's reconstruction uncertainty [s] (it enters the tracker noise as (ω̂·σ_t)²)."""
+        return self.clock.tag_error_sigma_s
+
+    def wake(self) -> tuple[float, float]:
+        """For the engine's compiled loop: the event time and the engine time from which
+        :meth:`on_window` has work while the engine's flags stay the same (−inf: now). Earlier
+        is always safe (the hook then finds nothing to do)."""
         if self.flags != self._last_flags:
             return -math.inf, -math.inf
         wake_t = self.packet_wake
@@ -361,7 +368,7 @@ class StreamProcessor(StreamGuards):
                 wake_t = min(wake_t, spec.next_t)
         return wake_t
 
-    # kept until the schedule can change: _on_window, end_stream, new packets
+    # kept until the schedule can change: on_window, end_stream, new packets
     packet_wake: float | None = None
 
     @property
@@ -378,7 +385,9 @@ class StreamProcessor(StreamGuards):
         self._sample_specs = [(f"tlm/{n}", s) for n, s in specs.items() if s.trigger == "sample"]
         self._sample_packets = bool(self._sample_specs)
 
-    def _on_window(self, t: float) -> None:
+    def on_window(self, t: float) -> None:
+        """After a window close at event time t [s]: a fault message when the flags changed,
+        the window packets and the diag that are due."""
         self.packet_wake = None  # the packets' due() below moves their schedule
         if self.flags != self._last_flags:
             self._emit_fault(t)

@@ -4,7 +4,7 @@ intake of a tracker message.
 The stream processor (:mod:`radical_rt.stream.processor`) holds each tracker sample until the watermark
 ``t_max − latency − slack`` passes its epoch ``t_bus − latency``. This module keeps the waiting
 samples as rows of two arrays in release order (epoch, then tracker 1 before 2, then arrival),
-so that a release hands the compiled engine (:func:`radical_rt.engine.fastpath.fast_release`) a row
+so that a release hands the compiled engine (:func:`radical_rt.engine.loop.run_release`) a row
 range instead of building its event arrays sample by sample, and it takes in a whole tracker
 message in one kernel call (:func:`tracker_intake`): the msgpack decoding of the plain layout, the
 time checks, the late-sample test, the sorted insertion and the stream's test whether a release
@@ -270,7 +270,7 @@ def release_plan(ss, si, ev_f, gq_t, gq_head, gq_end, wm, acc0, window, defer):
 
 class TrackerQueue:
     """The waiting tracker rows and the shared scalars (module docstring), with the engine's
-    per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see fast_release)."""
+    per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see run_release)."""
 
     def __init__(self, capacity: int = 64) -> None:
         self.ss = np.zeros(SS.end)

@@ -195,10 +195,10 @@ class DenseEngine(ReferenceEngine):
     """The Python event loop of :class:`ReferenceEngine` with the covariance kept dense (see the
     module docstring)."""
 
-    def __init__(self, table=None, geometry=None) -> None:
+    def __init__(self, table=None, geometry=None, **options) -> None:
         self.P = np.zeros((0, 0))  # allocated by the first cold start (_from_ud)
         self._ud_synced = True
-        super().__init__(table, geometry)
+        super().__init__(table, geometry, **options)
         ns = self.ns
         self._T = np.zeros((3, ns))
         self._PHt = np.zeros((ns, self.Hbuf.shape[0]))
@@ -341,10 +341,12 @@ def make_processor(engine_cls=Engine, table=None, clock_mode: str = "reconstruct
     """A stream processor as :func:`radical_rt.apps.batch.make_processor` builds it, with the engine
     class of choice (``Engine`` or :class:`DenseEngine`)."""
     from radical_rt.clock.siru_clock import ClockConfig, SiruClock
+    from radical_rt.contract.params import ParamTable
     from radical_rt.stream.processor import StreamProcessor
 
-    engine = engine_cls(table)
-    return StreamProcessor(engine, SiruClock(ClockConfig(mode=clock_mode), n_gyro=engine.n_gyro))
+    table = table or ParamTable()
+    return StreamProcessor(table, SiruClock(ClockConfig(mode=clock_mode), n_gyro=table.n_gyro),
+                           engine_type=engine_cls)
 
 
 def run_archive(sp, path: str | Path):

@@ -3,7 +3,7 @@
 :class:`ReferenceEngine` is :class:`radical_rt.engine.filter.Engine` with :meth:`release` replaced
 by an event loop in Python that calls the small kernels one by one (propagation, window close,
 parity sums, tracker updates, fold), in the order docs/engine.md §3 specifies. The product runs
-the same steps compiled in one call (:mod:`radical_rt.engine.fastpath`, :mod:`radical_rt.engine.
+the same steps compiled in one call (:mod:`radical_rt.engine.loop`, :mod:`radical_rt.engine.
 steps`); tests/test_fastpath.py requires the two to give the same outputs bit for bit, so each
 is a check on the other. The dense-covariance oracle (:mod:`tests.oracles.dense_engine`) runs
 this loop with its own covariance primitives. Shared with the product on purpose: the kernels of
@@ -18,8 +18,8 @@ import numpy as np
 
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_state import param_slice
-from radical_rt.engine.fastpath_glue import ST_EDITED_BIT, ST_KIND
 from radical_rt.engine.filter import Engine
+from radical_rt.engine.shell import ST_EDITED_BIT, ST_KIND
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import parity_from_stats, quat_from_tracker, tracker_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
@@ -40,8 +40,8 @@ def _span(arrays, a: int, b: int):
 class ReferenceEngine(Engine):
     """:class:`Engine` whose releases run the Python event loop of this module."""
 
-    def __init__(self, table=None, geometry=None) -> None:
-        super().__init__(table, geometry)
+    def __init__(self, table=None, geometry=None, **options) -> None:
+        super().__init__(table, geometry, **options)
         self.queue: list = []  # closed parity sums waiting for their lag (t, y, tt, noise)
         self._views: dict[int, tuple[np.ndarray, ...]] = {}
         self._var_cache: dict[int, tuple[np.ndarray, float]] = {}

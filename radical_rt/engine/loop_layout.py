@@ -1,8 +1,8 @@
-"""Layout of the compiled release's three small argument arrays (:func:`radical_rt.engine.fastpath.
-fast_release`), declared once with :class:`radical_rt.contract.layout.Fields`.
+"""Layout of the compiled release's three small argument arrays (:func:`radical_rt.engine.loop.
+run_release`), declared once with :class:`radical_rt.contract.layout.Fields`.
 
 ``cfg`` (float64): the engine's scalar configuration, rebuilt after every parameter change
-(``FastRelease._fast_config``); ``io`` (float64): the scalar state the kernel loads, updates and
+(``LoopShell._loop_config``); ``io`` (float64): the scalar state the kernel loads, updates and
 hands back, and the outputs of a tracker update; ``cnt`` (int64): flags, counters and status codes.
 ``IO_LAST_ST + j`` is the last valid epoch of tracker j = 1, 2.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from radical_rt.contract.layout import Fields
 
-CFG = Fields("fastpath.cfg", "float64")
+CFG = Fields("loop.cfg", "float64")
 CFG_PROP_WINDOW = CFG.add("prop_window", doc="samples per time-update window")
 CFG_ARW_VAR = CFG.add("arw_var", unit="rad^2/s", doc="angle random walk variance rate")
 CFG_QUANT_VAR = CFG.add("quant_var", unit="rad^2", doc="quantization variance per sample")
@@ -38,7 +38,7 @@ CFG_HOOK_SUM = CFG.add("hook_sum",
                        doc="1: the window hook has work after every close that queued a sum")
 CFG.freeze()
 
-IO = Fields("fastpath.io", "float64")
+IO = Fields("loop.io", "float64")
 IO_T = IO.add("t", unit="s", doc="engine time (in/out)")
 IO_LOCKED_SINCE = IO.add("locked_since", unit="s", doc="lock latch (in/out; inf: not locked)")
 IO_SIG_T = IO.add("sig_t", unit="s", doc="sigma of the time line")
@@ -60,7 +60,7 @@ IO_WAKE_EVERY = IO.add("wake_every",
 IO.freeze()
 IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
 
-CNT = Fields("fastpath.cnt", "int64")
+CNT = Fields("loop.cnt", "int64")
 CNT_FLAGS = CNT.add("flags", doc="the engine's flags (in/out)")
 CNT_FLAGS0 = CNT.add("flags0", doc="the engine's flags at the start of the call")
 CNT_USED = CNT.add("used", doc="samples propagated (+=)")

@@ -1,10 +1,10 @@
-"""The engine's shell around its compiled loop (:mod:`radical_rt.engine.fastpath`).
+"""The engine's shell around its compiled loop (:mod:`radical_rt.engine.loop`).
 
-:class:`FastRelease` is the part of :class:`radical_rt.engine.filter.Engine` that hands one whole
-release of the stream processor to :func:`radical_rt.engine.fastpath.fast_release`, runs the
+:class:`LoopShell` is the part of :class:`radical_rt.engine.filter.Engine` that hands one whole
+release of the stream processor to :func:`radical_rt.engine.loop.run_release`, runs the
 window hook where the kernel stops for it, and keeps the bookkeeping the kernel reports: the
 tracker samples it completed (FDI history, diagnostics, counters), the counters of the call, and
-the scalar state it loads and hands back (:meth:`_fast_begin`, :meth:`_fast_end`).
+the scalar state it loads and hands back (:meth:`_loop_begin`, :meth:`_loop_end`).
 :meth:`_event` runs one of the engine's compiled steps for Python (commands, checks, the end of a
 stream) on the same state. No filter step is written here.
 """
@@ -12,20 +12,19 @@ stream) on the same state. No filter step is written here.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
 from radical_rt.contract.flags import Flag
-from radical_rt.engine import fastpath as fp
-from radical_rt.engine import fastpath_layout as FL
+from radical_rt.engine import loop as lp
+from radical_rt.engine import loop_layout as FL
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
 ST_KIND = {1: "st1", 2: "st2"}
 ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
-MODE_CODE = {"init": -1.0, "converging": fp.MODE_CONVERGING, "converged": fp.MODE_CONVERGED,
-             "degraded": fp.MODE_DEGRADED}  # IO_MODE of radical_rt.engine.fastpath_layout
+MODE_CODE = {"init": -1.0, "converging": lp.MODE_CONVERGING, "converged": lp.MODE_CONVERGED,
+             "degraded": lp.MODE_DEGRADED}  # IO_MODE of radical_rt.engine.loop_layout
 _MODE_NAME = {v: k for k, v in MODE_CODE.items()}
 _NO_SUM = None  # no parity sum waiting for the window hook
 
@@ -35,7 +34,7 @@ def numeric_reason(code: int) -> str:
     return "sense-axis geometry singular" if code == NUMERIC_GEOMETRY else f"UD kernel status {code}"
 
 
-class FastRelease:
+class LoopShell:
     """Mixin of :class:`radical_rt.engine.filter.Engine`: :meth:`release` and its bookkeeping."""
 
     def release(self, arrays, a: int, z: int, events, predict=None) -> None:
@@ -46,7 +45,7 @@ class FastRelease:
         history by the kernel. events: a :class:`radical_rt.stream.tracker_queue.EventBlock` (rows
         of the stream's tracker queue, which the kernel reads in place). predict: None, or (pred,
         q_end, clock_I, clock_F) for the kernel's prediction of sample-triggered telemetry at the
-        end of a release it completes (see fast_release; pred[0] = 1 asks for it, 2 says it was
+        end of a release it completes (see run_release; pred[0] = 1 asks for it, 2 says it was
         made). Runs :meth:`on_window` wherever the kernel stops for the window hook."""
         fdi = self.fdi
         if fdi is not None and z > a:  # the kernel's first call copies a..z−1 to the history
@@ -61,7 +60,7 @@ class FastRelease:
         n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
-        io, cnt, run = self._fast_io, self._fast_cnt, fp.fast_release
+        io, cnt, run = self._io, self._cnt, lp.run_release
         k, e = a, events.start
         while k < z or e < n_ev:
             bank = None if fdi is None else fdi.kernel_bank()
@@ -71,10 +70,10 @@ class FastRelease:
                 hist = fdi.gbuf
                 bk = bank.kernel_args(self, hist, hist.end + (z - a if g_end >= 0 else 0),
                                       n_ev - e, fdi.llr_threshold(self))
-            b = self._fast_begin()
+            b = self._loop_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
-                self._fb, self._ib, self._bb, self._lay, self._fast_cfg, io, cnt, evo_f, evo_i,
+                self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, evo_f, evo_i,
                 g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk, b[0], b[1], b[2],
                 b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10])
             if bank is not None:
@@ -82,7 +81,7 @@ class FastRelease:
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
-            self._fast_end()
+            self._loop_end()
             if e_stop > e:  # events the kernel completed
                 self._trackers_taken(events, e, e_stop)
             e = e_stop
@@ -91,10 +90,10 @@ class FastRelease:
                 t_hook = float(ev_f[e, 0])
                 e += 1
                 self.on_window(t_hook)
-            elif reason == fp.R_ON_WINDOW:
+            elif reason == lp.R_ON_WINDOW:
                 self.on_window(self.t)
 
-    # stand-ins for the FDI history blocks of fastpath.fast_release when there is no history
+    # stand-ins for the FDI history blocks of loop.run_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
     # ... and for the FDI bank when none runs in the kernel
     _no_bank = idle_kernel_args()
@@ -132,31 +131,28 @@ class FastRelease:
         return used
 
     # ---------------------------------------------------------------- kernel state
-    def _fast_begin(self) -> tuple:
+    def _loop_begin(self) -> tuple:
         """The scalar state the kernel loads into its io arrays at the start of a call (the last
-        eleven arguments of :func:`fastpath.fast_release`; :meth:`_fast_end` takes it back): t,
+        eleven arguments of :func:`loop.run_release`; :meth:`_loop_end` takes it back): t,
         locked_since, σ of the time line, wake_t, wake_e, attitude valid, last valid epochs of
         ST1 and ST2, mode code, flags, sum of the parity NIS. It also sets the configuration
         that follows the collaborators: IO_WAKE_EVERY (the window hook after every tracker sample,
         for a bank the kernel cannot run), CFG_FDI_ON and CFG_HOOK_SUM."""
-        last, fdi, src = self.last_valid_st, self.fdi, self.wake_source
-        wake_e = math.inf if fdi is None else fdi.wake_time()
-        self._fast_io[FL.IO_WAKE_EVERY] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
-        cfg = self._fast_cfg
+        last, fdi = self.last_valid_st, self.fdi
+        wake_t, wake_e = self.hooks.wake()  # the hooks' (the stream's packets and flags)
+        if fdi is not None:
+            wake_e = min(wake_e, fdi.wake_time())
+        self._io[FL.IO_WAKE_EVERY] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
+        cfg = self._cfg
         cfg[FL.CFG_FDI_ON] = 1.0 if fdi is not None and fdi.enabled(self) else 0.0
         cfg[FL.CFG_HOOK_SUM] = 1.0 if fdi is not None or self.excitation is not None else 0.0
-        if src is None:
-            wake_t = math.inf
-        else:  # the listener's (the stream's packets and flags)
-            wake_t, e = src()
-            wake_e = min(wake_e, e)
         return (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
                 1.0 if self.att_valid else 0.0, last.get(1, -math.inf), last.get(2, -math.inf),
                 MODE_CODE[self.mode], int(self.flags), self.nis_sum.get("parity", 0.0))
 
-    def _fast_end(self) -> None:
+    def _loop_end(self) -> None:
         """The scalar state and the counters of a call back from the io arrays."""
-        io, cnt = self._fast_io, self._fast_cnt
+        io, cnt = self._io, self._cnt
         self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
         self.att_valid = io[FL.IO_ATT_VALID] != 0.0
         self.mode = _MODE_NAME[float(io[FL.IO_MODE])]
@@ -195,7 +191,7 @@ class FastRelease:
         """Diagnostics of the parity updates of a call: the last one's innovation, σ and NIS,
         the running NIS sum, and the NIS of the used ones while the time line was locked."""
         self.diag_last["parity"] = (self.par_innov.copy(), self.par_sig.copy(),
-                                    float(self._fast_io[FL.IO_PAR_NIS]))
+                                    float(self._io[FL.IO_PAR_NIS]))
         if used:
             if self.locked_now():
                 self.nis_locked["parity"][0] += used
@@ -203,17 +199,17 @@ class FastRelease:
             self.nis_sum["parity"] = nis_sum
 
     def _event(self, code: int, arg: int = 0) -> None:
-        """Run :func:`fastpath.engine_event` ``code`` on the engine's state (EV_*)."""
-        b = self._fast_begin()
-        fp.engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._fast_cfg,
-                        self._fast_io, self._fast_cnt, b[0], b[1], b[2], b[5], b[6], b[7],
+        """Run :func:`loop.engine_event` ``code`` on the engine's state (EV_*)."""
+        b = self._loop_begin()
+        lp.engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._cfg,
+                        self._io, self._cnt, b[0], b[1], b[2], b[5], b[6], b[7],
                         b[8], b[9], b[10])
-        self._fast_end()
+        self._loop_end()
 
-    def _fast_config(self) -> None:
+    def _loop_config(self) -> None:
         """Scalar parameters and io arrays of the kernel (after every parameter change)."""
         si = self.si
-        self._fast_cfg = FL.CFG.pack({
+        self._cfg = FL.CFG.pack({
             "prop_window": si.prop_window, "arw_var": si.arw_var_per_s, "quant_var": si.quant_var,
             "regressor_k": si.regressor_k_sigma, "parity_window": si.parity_window,
             "gyro_gap": si.gyro_gap_s, "parity_lag": si.parity_lag_s,
@@ -224,10 +220,5 @@ class FastRelease:
             "lat_p": self._lat_col - 3, "st_min_stars": si.st_min_stars,
             "gate_parity": si.gate_parity_nis, "att_init_scale": si.att_init_scale,
             "fdi_on": 0.0, "hook_sum": 0.0})
-        self._fast_io = np.zeros(FL.IO.end)
-        self._fast_cnt = np.zeros(FL.CNT.end, np.int64)
-
-    # callable() → (wake_t, wake_e) of the listener (the stream's packets): the event time and
-    # the engine time from which on_window has work although the flags stay the same (−inf: at
-    # once); _fast_begin combines it with the FDI's wake_time()
-    wake_source: Callable[[], tuple[float, float]] | None = None
+        self._io = np.zeros(FL.IO.end)
+        self._cnt = np.zeros(FL.CNT.end, np.int64)

@@ -1,6 +1,6 @@
 """The engine's per-event loop, compiled: one call runs a whole release of the stream processor.
 
-:func:`fast_release` takes the gyro samples and tracker samples the stream processor releases, in
+:func:`run_release` takes the gyro samples and tracker samples the stream processor releases, in
 time order, and runs every step of the filter on them: propagation, the window close (time update,
 lock latch, parity sums queued with their FDI statistic, lagged parity updates), attitude
 initialization, gyro gaps (warm start), tracker updates (all cases of docs/engine.md §3.4:
@@ -22,7 +22,7 @@ step for Python (commands, checks, the end of a stream) on the same state.
 engine's three flat buffers, one argument each instead of one per array; all updated in place).
 ``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
 kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
-and status codes (int64), declared in :mod:`radical_rt.engine.fastpath_layout` (``CFG_*``,
+and status codes (int64), declared in :mod:`radical_rt.engine.loop_layout` (``CFG_*``,
 ``IO_*``, ``CNT_*``; docs/engine.md lists them).
 """
 
@@ -35,7 +35,8 @@ import numpy as np
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_layout import E_INDEX, unpack
-from radical_rt.engine.fastpath_layout import (
+from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.engine.loop_layout import (
     CFG_ARW_VAR,
     CFG_EDIT,
     CFG_GATE_NIS,
@@ -78,7 +79,6 @@ from radical_rt.engine.fastpath_layout import (
     IO_WAKE_EVERY,
     IO_WAKE_T,
 )
-from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.engine.steps import (
     MODE_INIT,
     begin_attitude_init,
@@ -286,7 +286,7 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
 
 
 @kernel
-def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
+def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
                  clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1,
                  s_last2, s_mode, s_flags, s_nis_par):
@@ -365,7 +365,7 @@ def fast_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_
 @inline_kernel
 def load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
                  s_mode, s_flags, s_nis_par):
-    """The engine's scalar state into io and cnt at the start of a call (FastRelease._fast_begin;
+    """The engine's scalar state into io and cnt at the start of a call (LoopShell._loop_begin;
     Python reads it back after the call): engine time [s], lock latch [s], σ of the time line
     [s], wake_t and wake_e [s], attitude valid (0/1), last valid ST1 and ST2 epochs [s], mode
     code, flags, and the sum of the parity NIS. The per-call counters of cnt (CNT_USED on) ← 0,
@@ -387,7 +387,7 @@ EV_BEGIN_ATTITUDE_INIT, EV_NUMERIC, EV_FLUSH, EV_RESET_PARITY = 0, 1, 2, 3  # en
 def engine_event(code, arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_t, s_att,
                  s_last1, s_last2, s_mode, s_flags, s_nis_par):
     """One of the engine's steps run for Python (commands, checks, the end of a stream) on the
-    packed state, with the scalar state loaded as for :func:`fast_release`:
+    packed state, with the scalar state loaded as for :func:`run_release`:
     EV_BEGIN_ATTITUDE_INIT (the attitude is lost; steps.begin_attitude_init), EV_NUMERIC (a
     numeric fault with code ``arg``; steps.numeric_fault), EV_FLUSH (the end of a stream: the
     open parity sum queued, every queued sum updated, the correction folded), EV_RESET_PARITY
