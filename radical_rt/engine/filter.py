@@ -32,14 +32,14 @@ from radical_rt.contract.geometry import Geometry
 from radical_rt.contract.params import ParamTable, to_si
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
 from radical_rt.engine.engine_state import EngineState
-from radical_rt.engine.excitation import ExcitationMonitor
-from radical_rt.engine.hooks import EngineHooks, NoHooks
-from radical_rt.engine.loop import (
+from radical_rt.engine.events import (
     EV_BEGIN_ATTITUDE_INIT,
     EV_FLUSH,
     EV_NUMERIC,
     EV_RESET_PARITY,
 )
+from radical_rt.engine.excitation import ExcitationMonitor
+from radical_rt.engine.hooks import EngineHooks, NoHooks
 from radical_rt.engine.shell import LoopShell
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.kernels import ud

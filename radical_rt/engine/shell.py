@@ -18,6 +18,7 @@ import numpy as np
 from radical_rt.contract.flags import Flag
 from radical_rt.engine import loop as lp
 from radical_rt.engine import loop_layout as FL
+from radical_rt.engine.events import engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
@@ -199,9 +200,9 @@ class LoopShell:
             self.nis_sum["parity"] = nis_sum
 
     def _event(self, code: int, arg: int = 0) -> None:
-        """Run :func:`loop.engine_event` ``code`` on the engine's state (EV_*)."""
+        """Run :func:`radical_rt.engine.events.engine_event` ``code`` on the engine's state (EV_*)."""
         b = self._loop_begin()
-        lp.engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._cfg,
+        engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._cfg,
                         self._io, self._cnt, b[0], b[1], b[2], b[5], b[6], b[7],
                         b[8], b[9], b[10])
         self._loop_end()

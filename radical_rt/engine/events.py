@@ -1,0 +1,52 @@
+"""Steps of the engine that Python asks for outside a release: :func:`engine_event`.
+
+Commands (cold and warm starts, an isolation), Python's own numeric checks and the end of a
+stream run the engine's compiled steps (:mod:`radical_rt.engine.steps`) on the packed state
+through this one kernel, with the scalar state loaded and handed back as for a release
+(``LoopShell._event``), so no step has a second implementation in Python.
+"""
+
+from __future__ import annotations
+
+import math
+
+from radical_rt._jit import kernel
+from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.steps import (
+    begin_attitude_init,
+    fold,
+    load_scalars,
+    numeric_fault,
+    pop_parity,
+    queue_parity,
+    reset_parity,
+)
+
+_PQ_I = E_INDEX["pq_i"]
+
+EV_BEGIN_ATTITUDE_INIT, EV_NUMERIC, EV_FLUSH, EV_RESET_PARITY = 0, 1, 2, 3  # engine_event codes
+
+
+@kernel
+def engine_event(code, arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_t, s_att,
+                 s_last1, s_last2, s_mode, s_flags, s_nis_par):
+    """One of the engine's steps run for Python (commands, checks, the end of a stream) on the
+    packed state, with the scalar state loaded as for :func:`run_release`:
+    EV_BEGIN_ATTITUDE_INIT (the attitude is lost; steps.begin_attitude_init), EV_NUMERIC (a
+    numeric fault with code ``arg``; steps.numeric_fault), EV_FLUSH (the end of a stream: the
+    open parity sum queued, every queued sum updated, the correction folded), EV_RESET_PARITY
+    (the open parity sum dropped)."""
+    load_scalars(io, cnt, s_t, s_locked, s_sig_t, math.inf, math.inf, s_att, s_last1, s_last2,
+                 s_mode, s_flags, s_nis_par)
+    E = unpack(fb, ib, bb, lay)
+    if code == EV_BEGIN_ATTITUDE_INIT:
+        begin_attitude_init(E, io, cnt)
+    elif code == EV_NUMERIC:
+        numeric_fault(E, io, cnt, arg)
+    elif code == EV_FLUSH:
+        queue_parity(E, cfg, io, cnt)
+        while E[_PQ_I][1] > 0:
+            pop_parity(E, cfg, io, cnt)
+        fold(E, io, cnt)
+    elif code == EV_RESET_PARITY:
+        reset_parity(E)
