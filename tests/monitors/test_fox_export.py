@@ -23,7 +23,7 @@ from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR
 from radical_rt.io.archive import ArchiveReader
 from replayer.synth.api import synthesize
 
-JS = Path(__file__).parent / "js"
+JS = Path(__file__).parents[1] / "js"
 
 
 def node_read(path: Path) -> dict:

@@ -24,11 +24,11 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
-from support.node import input_messages, make_archive, wait_for
+from tests.support.node import input_messages, make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh
-ROOT = Path(__file__).resolve().parents[1]
-JS = Path(__file__).parent / "js"
+ROOT = Path(__file__).resolve().parents[2]
+JS = Path(__file__).parents[1] / "js"
 
 
 def _read_line(proc: subprocess.Popen, needle: str, timeout: float) -> str:

@@ -16,10 +16,10 @@ from monitors.live import LatestStore, ZenohSource, pick_vehicle
 from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR
 from radical_rt.contract.flags import Flag
 from radical_rt.io import zconfig
-from support.packets import large_packet
+from tests.support.packets import large_packet
 
 # radical_rt.io.outpaths: the one output-path policy of every command (argparse types, no engine)
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ALLOWED_RADICAL = {"radical_rt.contract.conventions", "radical_rt.contract.paper_table",
                    "radical_rt.contract.flags", "radical_rt.io.zconfig", "radical_rt.io.outpaths",
                    "radical_rt.io.archive", "radical_rt.contract.schemas",

@@ -13,7 +13,7 @@ from monitors.common import fmt_est_sigma
 from monitors.live import LatestStore
 from radical_rt.contract.conventions import DEG_PER_HR, PPM
 from radical_rt.contract.flags import Flag
-from support.packets import large_packet
+from tests.support.packets import large_packet
 
 
 @pytest.fixture
@@ -164,7 +164,7 @@ def test_tui_started_before_data_renders_full_values_and_survives_resize(Monitor
             for w in want:
                 assert w in screen, f"after resize: {w!r} truncated or missing in:\n{screen}"
             assert "STALE" not in text_of(app.query_one("#status"))
-            artifacts = Path(__file__).parent / "artifacts"
+            artifacts = Path(__file__).parents[1] / "artifacts"
             artifacts.mkdir(exist_ok=True)
             if not (artifacts / ".gitignore").exists():  # keep screenshots out of git
                 (artifacts / ".gitignore").write_text("*\n")

@@ -22,16 +22,14 @@ import pytest
 
 from radical_rt.contract.flags import Flag
 from radical_rt.io import zconfig
-
-sys.path.insert(0, str(Path(__file__).parent))
-from support.packets import large_packet  # noqa: E402
+from tests.support.packets import large_packet
 
 pytestmark = pytest.mark.zenoh
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
         "--disable-component-update", "--disable-sync", "--no-first-run"]
-ARTIFACTS = Path(__file__).parent / "artifacts"
+ARTIFACTS = Path(__file__).parents[1] / "artifacts"
 VEHICLE = "webtest"
 STALE_S = 3.0  # the monitor's stale-data alarm, short for the test
 # browser update period: 2 Hz, not the default 4 Hz: on this 2-core machine under a concurrent

@@ -5,7 +5,7 @@ state change (the full benchmark: 1,000,000 payloads, perf/README.md)."""
 from __future__ import annotations
 
 from perf.fuzz_inputs import KINDS, run
-from support.node import input_messages, make_archive
+from tests.support.node import input_messages, make_archive
 
 
 def test_fuzz_harness_short(tmp_path):

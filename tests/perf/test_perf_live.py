@@ -28,7 +28,7 @@ from perf import (
     live_stream,
 )
 from radical_rt.apps.node_timing import LoopTiming
-from support.node import MemNode
+from tests.support.node import MemNode
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader, TruncatedArchiveWarning
 from replayer.record import RecordError, bus_time_ns, parse_topics, record
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def ep() -> str:

@@ -30,7 +30,7 @@ from replayer.record import record
 from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
 from replayer.synth.api import synthesize
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VEH = "testveh"
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("radical_rt", "replayer", "mission", "monitors", "perf", "studies")
 
 #: (module path, expression) of the private accesses left (same-class helpers included)

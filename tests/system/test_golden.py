@@ -2,7 +2,7 @@
 (tests/golden/<case>.json) — outputs byte for byte (SHA-256 per topic), the summary, counters,
 flags, mode and a trace of decoded messages. A deliberate numerical change regenerates the records
 (``RADICAL_GOLDEN_UPDATE=1 python -m pytest tests/test_golden.py``) and commits the diff.
-On a platform other than the recording one, numbers compare at support.golden.RTOL."""
+On a platform other than the recording one, numbers compare at tests.support.golden.RTOL."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import os
 
 import pytest
 
-from support import golden
-from support.golden_cases import CASES
+from tests.support import golden
+from tests.support.golden_cases import CASES
 
 UPDATE = os.environ.get("RADICAL_GOLDEN_UPDATE") == "1"
 

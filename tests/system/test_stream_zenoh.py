@@ -21,10 +21,10 @@ from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
 from replayer.replay import replay
-from support.node import make_archive, wait_for
+from tests.support.node import make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _ep() -> str:

@@ -14,7 +14,7 @@ import pytest
 
 from radical_rt.apps import cli
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 UPPER = re.compile(r"\b(replayer|mission|monitors|perf|studies)\.[A-Za-z_]")
 
 

@@ -12,7 +12,7 @@ import pytest
 from radical_rt.apps.batch import make_processor
 from radical_rt.contract.flags import Flag
 from radical_rt.contract.params import Params, ParamTable
-from support.node import MemNode, feed_archive, input_messages
+from tests.support.node import MemNode, feed_archive, input_messages
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 from radical_rt.apps import commands
 from radical_rt.contract.flags import Flag
 from radical_rt.io.checkpoint import read
-from support.node import MemNode, feed_archive, input_messages
+from tests.support.node import MemNode, feed_archive, input_messages
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
-from support.node import (
+from tests.support.node import (
     MemNode,
     feed_archive,
     input_messages,

@@ -22,10 +22,10 @@ from radical_rt.io import checkpoint as ckpt
 from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
-from support.node import cmd, input_messages, wait_for
+from tests.support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _ep() -> str:

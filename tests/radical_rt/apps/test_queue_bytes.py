@@ -16,7 +16,7 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
-from support.node import wait_for
+from tests.support.node import wait_for
 
 pytestmark = pytest.mark.zenoh
 

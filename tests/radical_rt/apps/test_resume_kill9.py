@@ -10,10 +10,10 @@ import signal
 
 import numpy as np
 import pytest
-from test_node_zenoh import NodeProc, publish, wait_fed
 
 from radical_rt.io import checkpoint as ckpt
-from support.node import cmd, input_messages, wait_for
+from tests.radical_rt.apps.test_node_zenoh import NodeProc, publish, wait_fed
+from tests.support.node import cmd, input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
 

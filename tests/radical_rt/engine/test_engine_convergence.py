@@ -36,7 +36,7 @@ from radical_rt.io.archive import ArchiveReader
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import internal_from_contract
 from replayer.synth import synthesize
-from support.scenarios import scenario
+from tests.support.scenarios import scenario
 
 Z999 = 3.2905  # two-sided 99.9 % normal quantile
 CHI2_24_999 = 51.179

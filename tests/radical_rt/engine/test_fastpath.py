@@ -22,9 +22,9 @@ from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.contract.params import ParamTable
 from radical_rt.engine import fastpath
-from support.streams import damaged, input_messages, make_archive
 from tests.oracles.dense_engine import make_processor as dense_make_processor
 from tests.oracles.reference_engine import ReferenceEngine
+from tests.support.streams import damaged, input_messages, make_archive
 
 
 def run(messages, fast: bool, params=None):

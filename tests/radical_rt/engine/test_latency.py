@@ -18,8 +18,8 @@ from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.contract.state import PARAM_GROUPS
 from radical_rt.io.archive import ArchiveReader
 from replayer.synth import synthesize
-from support.scenarios import scenario
 from tests.oracles.reference_engine import ReferenceEngine
+from tests.support.scenarios import scenario
 
 OFFSET_S = 0.020
 

@@ -33,7 +33,7 @@ from radical_rt.fdi.monitor import (
     cusum_arl0,
     thresholds,
 )
-from support.node import MemNode, feed_archive, input_messages
+from tests.support.node import MemNode, feed_archive, input_messages
 
 
 # ------------------------------------------------------------------------------ detector math

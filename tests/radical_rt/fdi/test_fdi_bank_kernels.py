@@ -244,7 +244,7 @@ def test_decision_due_is_the_python_decision_not_waiting():
 def test_kernels_without_jit():
     """The tests above with NUMBA_DISABLE_JIT=1: the kernels' source as plain Python."""
     env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[3]
     env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
     r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", __file__,
                         "-k", "not without_jit"], env=env, cwd=root, capture_output=True,

@@ -16,7 +16,7 @@ from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
-from support.node import input_messages
+from tests.support.node import input_messages
 
 KEYS = ("gyro", "t_alarm", "t_isolated", "t_onset_est", "t_snapshot", "test", "llr_margin")
 

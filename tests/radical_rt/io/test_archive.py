@@ -34,7 +34,7 @@ from radical_rt.io.archive import (
     recover,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SCENARIO = {"name": "unit", "vehicle": "sc1", "seed": "7", "generator": "tests", "extra": "x"}
 PARAM_KEYS = ("b", "lam", "mu", "du", "dv", "phi2")
 

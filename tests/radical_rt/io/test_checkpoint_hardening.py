@@ -19,9 +19,9 @@ from radical_rt.apps.batch import make_processor
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.clock import clock_layout as L
 from radical_rt.io import checkpoint as ckpt
-from support.node import MemNode, feed_archive, input_messages
+from tests.support.node import MemNode, feed_archive, input_messages
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ from radical_rt.kernels.propagate import predict_attitude
 from radical_rt.stream.telemetry import PacketError, parse_packets
 from radical_rt.stream.tracker_queue import EventBlock, TrackerQueue
 from replayer.synth import synthesize
-from support.scenarios import scenario
+from tests.support.scenarios import scenario
 
 
 def test_predict_attitude_matches_filter_propagation():

@@ -10,7 +10,7 @@ import pytest
 
 from radical_rt.apps.batch import make_processor, make_summary, process
 from radical_rt.stream.eos import make_eos
-from support.node import MemNode, input_messages, make_archive, wait_for
+from tests.support.node import MemNode, input_messages, make_archive, wait_for
 
 SI_KEYS = ("estimate", "sigma")
 

@@ -13,7 +13,7 @@ from radical_rt.contract.params import ParamTable
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.archive import ArchiveReader, ArchiveWriter
 from radical_rt.stream.eos import decode_eos, make_eos
-from support.node import MemNode, feed_archive, input_messages
+from tests.support.node import MemNode, feed_archive, input_messages
 
 OUT_TOPICS = ["/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag"]
 

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from radical_rt.apps.batch import make_processor, process
 from radical_rt.io.archive import ArchiveWriter
-from support.node import input_messages, make_archive
+from tests.support.node import input_messages, make_archive
 
 ARCSEC = math.pi / 648000
 

@@ -16,8 +16,8 @@ from replayer.synth import BUILTINS, ScenarioError, cli, load_scenario
 from replayer.synth.scenario import GROUPS, print_default
 
 SHARED_TABLES = Path("/work/shared/data/messenger_tables.json")
-PKG_TABLES = Path(__file__).parents[1] / "replayer" / "synth" / "messenger_tables.json"
-SYNTH_DIR = Path(__file__).parents[1] / "replayer" / "synth"
+PKG_TABLES = Path(__file__).parents[3] / "replayer" / "synth" / "messenger_tables.json"
+SYNTH_DIR = Path(__file__).parents[3] / "replayer" / "synth"
 
 
 def tables():
