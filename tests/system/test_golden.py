@@ -1,7 +1,7 @@
 """Golden outputs: every seeded case of tests/support/golden_cases.py reproduces its frozen record
 (tests/golden/<case>.json) — outputs byte for byte (SHA-256 per topic), the summary, counters,
 flags, mode and a trace of decoded messages. A deliberate numerical change regenerates the records
-(``RADICAL_GOLDEN_UPDATE=1 python -m pytest tests/test_golden.py``) and commits the diff.
+(``RADICAL_GOLDEN_UPDATE=1 python -m pytest tests/system/test_golden.py``) and commits the diff.
 On a platform other than the recording one, numbers compare at tests.support.golden.RTOL."""
 
 from __future__ import annotations

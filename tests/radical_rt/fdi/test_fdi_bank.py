@@ -216,7 +216,7 @@ def test_bank_in_the_compiled_release_decides_at_the_same_sample(name, tmp_path,
 def test_fast_path_hands_over_at_tracker_samples_only_while_a_bank_runs(tmp_path, monkeypatch):
     """While a bank runs that the compiled release does not run itself, the window hook runs
     after every tracker sample and at the bank's time checks, not at the 10-Hz gyro window closes
-    (docs/fdi.md §1); the decision times are those of the reference path (tests/test_fastpath.py
+    (docs/fdi.md §1); the decision times are those of the reference path (tests/radical_rt/engine/test_fastpath.py
     compares the outputs byte for byte)."""
     fault, duration = SCENARIOS["stuck C"]
     path = synth(fault_toml(fault, duration=duration), tmp_path / "fault.mcap")
