@@ -46,7 +46,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/radical bench --profile full --out perf/results
 
-# The quick profile (a few minutes; the live benches also run inside `make test`, tests/test_perf_live.py).
+# The quick profile (a few minutes; the live benches also run inside `make test`, tests/perf/test_perf_live.py).
 bench-quick: $(STAMP)
 	$(BIN)/radical bench --profile quick --out perf/results
 

@@ -48,7 +48,7 @@ from studies.clock_matrix_cases import CASES, QUICK, Case, by_name, scenario
 
 AIMS = ("lock", "lock_wrap2", "freq", "timeline", "counts", "anomaly", "alarms", "latency", "params",
         "converged")
-#: the aims that apply to the short runs of --quick (tests/test_clock_matrix.py)
+#: the aims that apply to the short runs of --quick (tests/studies/test_clock_matrix.py)
 QUICK_AIMS = ("lock", "lock_wrap2", "freq", "timeline", "counts", "anomaly", "alarms")
 FREQ_AIM_PPM, TIMELINE_AIM_US, Z_AIM = 0.1, 20.0, 3.0
 ALARM_FLAGS = ("PARITY_ALARM", "GYRO_A_FAILED", "GYRO_B_FAILED", "GYRO_C_FAILED", "GYRO_D_FAILED")

@@ -141,7 +141,7 @@ CASES: tuple[Case, ...] = (
     Case("tick.9-eps10", +10, offset_s=0.9e-3, wrap_s=1500, resets_s=(2700,), seed=126),
 )
 
-#: The shortened subset (tests/test_clock_matrix.py): 300–600 s, sawtooth periods ≤ 100 s so
+#: The shortened subset (tests/studies/test_clock_matrix.py): 300–600 s, sawtooth periods ≤ 100 s so
 #: that two wraps fit.
 QUICK: tuple[Case, ...] = (
     Case("q-read-2us", +300, _R, jitter_s=2e-6, wrap_s=150, duration_s=300, seed=201),

@@ -1,3 +1,3 @@
 """Fixtures shared by every test module (defined in tests/support)."""
 
-from support.node import archives, batch_ref  # noqa: F401 (fixtures)
+from tests.support.node import archives, batch_ref  # noqa: F401 (fixtures)

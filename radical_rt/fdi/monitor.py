@@ -85,7 +85,7 @@ class FaultMonitor:
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
     (``fdi_*``, :mod:`radical_rt.contract.params`); defaults apply when a name is missing."""
 
-    #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/test_fdi_bank.py and
+    #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/radical_rt/fdi/test_fdi_bank.py and
     #: perf/bench_fdi_bank.py put the Python oracle of tests/oracles here)
     bank_type = HypothesisBank
 

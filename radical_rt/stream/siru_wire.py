@@ -18,7 +18,7 @@ Anything else — another key, a bool, nil, a duplicate key, a truncated or malf
 that decode_siru would reject — returns :data:`FALLBACK`, and the caller takes the general path
 (``msgpack`` and ``decode_siru``), which accepts the same messages with the same values and names
 the problem of every other one. So the fast path never rejects a message and never decides what
-a message means; ``tests/test_siru_wire.py`` checks it against the general path on seeded random
+a message means; ``tests/radical_rt/stream/test_siru_wire.py`` checks it against the general path on seeded random
 messages and on corrupted ones.
 """
 

@@ -1,4 +1,4 @@
-// Independent reader of a `radical export --foxglove` archive (tests/test_fox_export.py runs it).
+// Independent reader of a `radical export --foxglove` archive (tests/monitors/test_fox_export.py runs it).
 //
 //   node read_mcap.mjs FILE.mcap  ->  one JSON summary on stdout, exit 0; exit 1 on a read error
 //

@@ -1,4 +1,4 @@
-// Independent client of `radical monitor foxglove` (tests/test_fox_live.py runs it).
+// Independent client of `radical monitor foxglove` (tests/monitors/test_fox_live.py runs it).
 //
 //   node ws_client.mjs ws://127.0.0.1:PORT SECONDS [MIN_PER_TOPIC]  ->  JSON summary on stdout
 //

@@ -5,7 +5,7 @@ module function :func:`take`; public names for the two steps (``propagate_to``,
 ``update_tracker``, so that a test can trace every tracker sample); and ``final_state``, through
 which the monitor's hand-over now reads the winner's state.
 
-It is not the product: tests/test_fdi_bank.py runs it side by side with the compiled bank
+It is not the product: tests/radical_rt/fdi/test_fdi_bank.py runs it side by side with the compiled bank
 (radical_rt.fdi.fdi_hypotheses.HypothesisBank, kernels in radical_rt.fdi.fdi_bank) and compares the
 log-likelihoods and NIS of every tracker sample and the decisions; perf/bench_fdi_bank.py times
 both. Known difference by design: an S that is not positive definite gives ll = −inf in the

@@ -3,8 +3,13 @@
 :class:`ReferenceEngine` is :class:`radical_rt.engine.filter.Engine` with :meth:`release` replaced
 by an event loop in Python that calls the small kernels one by one (propagation, window close,
 parity sums, tracker updates, fold), in the order docs/engine.md §3 specifies. The product runs
+<<<<<<< HEAD
 the same steps compiled in one call (:mod:`radical_rt.engine.loop`, :mod:`radical_rt.engine.
-steps`); tests/test_fastpath.py requires the two to give the same outputs bit for bit, so each
+steps`); tests/radical_rt/engine/test_fastpath.py requires the two to give the same outputs bit for bit, so each
+=======
+the same steps compiled in one call (:mod:`radical_rt.engine.fastpath`, :mod:`radical_rt.engine.
+steps`); tests/radical_rt/engine/test_fastpath.py requires the two to give the same outputs bit for bit, so each
+>>>>>>> test-folders
 is a check on the other. The dense-covariance oracle (:mod:`tests.oracles.dense_engine`) runs
 this loop with its own covariance primitives. Shared with the product on purpose: the kernels of
 :mod:`radical_rt.kernels`, the commands and starts, and the window hook (``Engine.on_window``).

@@ -4,11 +4,11 @@ change is deliberate and shows as a diff of ``tests/golden/<case>.json``.
 A record holds, per output topic, the message count and the SHA-256 of the msgpack bytes; the
 summary file (CONTRACT §5, full float precision); the engine's counters, flags and mode; and a
 trace of five decoded messages per topic (first, last and three between) so that a change shows
-*where* it starts. ``tests/test_golden.py`` recomputes every case and compares.
+*where* it starts. ``tests/system/test_golden.py`` recomputes every case and compares.
 
 Regenerate after a deliberate change (and commit the diff with the reason)::
 
-    RADICAL_GOLDEN_UPDATE=1 python -m pytest tests/test_golden.py
+    RADICAL_GOLDEN_UPDATE=1 python -m pytest tests/system/test_golden.py
 
 Floating-point results depend on the CPU's instruction set only through BLAS/LAPACK and the
 compiled kernels; a record stores the platform it was made on, and on another platform the

@@ -1,4 +1,4 @@
-"""The seeded scenarios of the golden outputs (:mod:`support.golden`).
+"""The seeded scenarios of the golden outputs (:mod:`tests.support.golden`).
 
 Each case function takes a scratch directory and returns (description, outputs, processor). They
 cover what the engine does on the seeded scenarios of the suite and the clock matrix: a nominal

@@ -15,7 +15,7 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io.checkpoint import capture
 from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
-from support.streams import INPUTS, input_messages, make_archive  # noqa: F401 (re-exported)
+from tests.support.streams import INPUTS, input_messages, make_archive  # noqa: F401 (re-exported)
 
 
 @pytest.fixture(scope="session")
