@@ -15,7 +15,15 @@ in its place (same stream processor, clock, packets and loop). ``x_realtime`` = 
 figures for the dense engine; ``ud_speedup`` = UD ``x_realtime`` / dense ``x_realtime`` (> 1: the
 UD engine is faster); ``dense_max_param_diff_sigma`` = largest final parameter difference between
 the two engines in units of the UD σ (a check that both ran the same filter).
-The process is pinned to one CPU when the platform allows it.
+
+``end_to_end``: the command a user runs, ``radical process SIM.mcap -o OUT.mcap --summary S.json``,
+as a new process (start-up, imports, the Numba kernels loaded from the warm cache, MCAP reading and
+writing included): wall time from launch to exit and × real time. ``outside_compiled_share``: the
+share of py-spy's samples (``py-spy record --native``, 100 Hz, over the same command) whose
+innermost frame is not in Numba-compiled code, i.e. the time the process spends in Python,
+numpy, msgpack and the MCAP library rather than in the kernels (None without py-spy, and in
+the smoke profile).
+The process is pinned to one CPU when the platform allows it (the subprocesses inherit it).
 """
 
 from __future__ import annotations
@@ -23,6 +31,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -109,6 +120,8 @@ def _timed(profile: str) -> dict[str, Any]:
         t2 = time.perf_counter()
         _, dense_engine = _process(sim, DenseEngine)
         t3 = time.perf_counter()
+        e2e = _end_to_end(sim, Path(tmp))
+        spy = None if profile == "smoke" else _outside_compiled_share(sim, Path(tmp))
     wall, wall_dense = t2 - t1, t3 - t2
     n = summary["counters"]["siru_samples"]
     tel = PROFILES[profile]
@@ -119,8 +132,57 @@ def _timed(profile: str) -> dict[str, Any]:
            "dense": {"wall_s": wall_dense, "x_realtime": tel / wall_dense,
                      "us_per_gyro_sample": 1e6 * wall_dense / max(n, 1)},
            "ud_speedup": wall_dense / wall,
-           "dense_max_param_diff_sigma": compare(ud_engine, dense_engine)["max_param_diff_sigma"]}
+           "dense_max_param_diff_sigma": compare(ud_engine, dense_engine)["max_param_diff_sigma"],
+           "end_to_end": {"wall_s": e2e, "x_realtime": tel / e2e},
+           "outside_compiled_share": spy}
     return res
+
+
+def _command(sim: Path, tmp: Path) -> list[str]:
+    return [sys.executable, "-m", "radical_rt.apps.cli", "process", str(sim), "-o",
+            str(tmp / "out.mcap"), "--summary", str(tmp / "summary.json"), "--quiet"]
+
+
+def _end_to_end(sim: Path, tmp: Path) -> float:
+    """Wall time [s] of ``radical process`` as a new process, launch to exit."""
+    t0 = time.perf_counter()
+    subprocess.run(_command(sim, tmp), check=True, capture_output=True, timeout=3600)
+    return time.perf_counter() - t0
+
+
+def _outside_compiled_share(sim: Path, tmp: Path) -> float | None:
+    """Share of py-spy samples of ``radical process`` outside Numba-compiled code (see the
+    module docstring); None when py-spy is not installed or cannot attach."""
+    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(spy).exists():
+        return None
+    raw = tmp / "spy.txt"
+    r = subprocess.run([spy, "record", "--native", "--rate", "100", "--format", "raw", "-o",
+                        str(raw), "--", *_command(sim, tmp)], capture_output=True, timeout=3600)
+    if r.returncode != 0 or not raw.exists():
+        return None
+    return outside_share(raw.read_text())
+
+
+def outside_share(collapsed: str) -> float | None:
+    """From py-spy's collapsed native stacks ("frame;frame;... count" per line, root first): the
+    share of samples not in Numba-compiled code. Numba's machine code has no symbols: py-spy
+    shows it as unresolved frames ``0x7f… (?)`` below the Python frame that called the kernel;
+    a sample is in compiled code when such a frame follows its innermost Python frame (the
+    allocator and libm called from a kernel included)."""
+    total = inside = 0
+    for line in collapsed.splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack or not count.isdigit():
+            continue
+        n = int(count)
+        total += n
+        frames = stack.split(";")
+        last_py = max((i for i, f in enumerate(frames) if ".py:" in f or "<frozen" in f),
+                      default=-1)
+        if any(f.startswith("0x") and f.endswith("(?)") for f in frames[last_py + 1:]):
+            inside += n
+    return None if total == 0 else 1.0 - inside / total
 
 
 def markdown(res: dict[str, Any]) -> str:
@@ -134,6 +196,13 @@ def markdown(res: dict[str, Any]) -> str:
                      f"{d['us_per_gyro_sample']:.2f} | (shared) |")
         lines += ["", f"UD / dense speed ratio {res['ud_speedup']:.2f} ({res.get('n_states', '?')} states); "
                       f"largest final parameter difference {res['dense_max_param_diff_sigma']:.1e} σ."]
+    if "end_to_end" in res:
+        e = res["end_to_end"]
+        share = res.get("outside_compiled_share")
+        lines += ["", f"End to end (`radical process` as a new process, start-up included): "
+                      f"{e['wall_s']:.2f} s, {e['x_realtime']:.0f}× real time; share of the time "
+                      "outside compiled code (py-spy): "
+                      + ("n/a" if share is None else f"{100 * share:.0f} %") + "."]
     return "\n".join(lines)
 
 

@@ -13,7 +13,23 @@ def test_engine_bench_reports_finite_figures(tmp_path):
         assert math.isfinite(res[key]) and res[key] > 0, key
     assert res["siru_samples"] > 2500  # 30 s at 100 Hz, less repeats/misses
     assert json.loads((tmp_path / "engine_smoke.json").read_text())["bench"] == "engine"
+    assert res["end_to_end"]["x_realtime"] > 0  # radical process as a new process
     assert "× real time" in bench_engine.markdown(res)
+
+
+def test_outside_compiled_share_reads_native_stacks():
+    """Samples whose frames below the innermost Python frame include Numba's unresolved machine
+    code (``0x… (?)``, also when it called malloc) count as compiled; the others do not."""
+    py = "main (radical_rt/apps/cli.py:1);release (radical_rt/engine/shell.py:75)"
+    collapsed = "\n".join([
+        f"{py};0x7f00 (?) 6",  # in a kernel
+        f"{py};0x7f00 (?);nrt_allocate (numba/core/runtime/nrt.cpp:1);malloc (libc.so.6) 2",
+        f"{py};_trackers_taken (radical_rt/engine/shell.py:116) 1",  # Python
+        f"{py};array_dealloc (numpy/_core/x.so) 1",  # numpy called from Python
+        "0x7f0 (libc.so.6);gc_collect_main (libpython3.11.so.1.0) 2",
+    ])
+    assert bench_engine.outside_share(collapsed) == 1.0 - 8 / 12
+    assert bench_engine.outside_share("") is None
 
 
 def test_bench_driver_writes_summary(tmp_path):
