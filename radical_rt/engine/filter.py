@@ -223,9 +223,9 @@ class Engine(LoopShell, EngineState):
         sig = float(self.hooks.timing_sigma(self.t))
         return sig if math.isfinite(sig) and sig > 0.0 else 0.0
 
-    def locked_now(self) -> bool:
-        """Whether the time line is locked now (σ_t ≤ timing_consider_s: the updates calibrate)."""
-        return self.timing_sigma() <= self.si.timing_consider_s
+    #: whether the time line was locked (σ_t ≤ timing_consider_s: the updates calibrate) at the
+    #: start of the last compiled call (the σ does not change during a release)
+    locked = False
 
     fdi = None  # (class defaults for the start-up, before __init__ sets them)
     excitation = None
@@ -238,7 +238,7 @@ class Engine(LoopShell, EngineState):
         else:
             self.counters[kind + "_used"] += 1
             self.nis_sum[kind] += nis
-            if self.locked_now():
+            if self.locked:
                 rec = self.nis_locked[kind]
                 rec[0] += 1
                 rec[1] += nis

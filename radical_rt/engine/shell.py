@@ -147,7 +147,9 @@ class LoopShell:
         cfg = self._cfg
         cfg[FL.CFG_FDI_ON] = 1.0 if fdi is not None and fdi.enabled(self) else 0.0
         cfg[FL.CFG_HOOK_SUM] = 1.0 if fdi is not None or self.excitation is not None else 0.0
-        return (self.t, self.locked_since, self.timing_sigma(), wake_t, wake_e,
+        sig_t = self.timing_sigma()
+        self.locked = sig_t <= self.si.timing_consider_s  # for the NIS statistics of this call
+        return (self.t, self.locked_since, sig_t, wake_t, wake_e,
                 1.0 if self.att_valid else 0.0, last.get(1, -math.inf), last.get(2, -math.inf),
                 MODE_CODE[self.mode], int(self.flags), self.nis_sum.get("parity", 0.0))
 
@@ -194,7 +196,7 @@ class LoopShell:
         self.diag_last["parity"] = (self.par_innov.copy(), self.par_sig.copy(),
                                     float(self._io[FL.IO_PAR_NIS]))
         if used:
-            if self.locked_now():
+            if self.locked:
                 self.nis_locked["parity"][0] += used
                 self.nis_locked["parity"][1] += nis_sum - self.nis_sum.get("parity", 0.0)
             self.nis_sum["parity"] = nis_sum

@@ -77,6 +77,7 @@ class ReferenceEngine(Engine):
     def release(self, arrays, a: int, z: int, events, predict=None) -> None:
         """As Engine.release: the FDI history first, then per tracker event the gyro samples up
         to its epoch and the sample, then the samples up to z (no prediction is made)."""
+        self.locked = self.timing_sigma() <= self.si.timing_consider_s
         if self.fdi is not None and z > a:
             self.fdi.on_gyro_rows(arrays, a, z)
         t = arrays[0]
