@@ -19,10 +19,6 @@ from radical_rt.engine.engine_layout import SLOTS, slot_problems
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import contract_from_internal, contract_sigma_ud
 
-# flag bits as plain ints (IntFlag arithmetic is slow on the 10 Hz path)
-_STALE_BITS = ((1, int(Flag.ST1_STALE)), (2, int(Flag.ST2_STALE)))
-_NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
-
 
 class EngineState:
     """Arrays and bookkeeping of the engine for a given state layout and geometry."""
@@ -176,27 +172,6 @@ class EngineState:
         return sig
 
     _sig_work: np.ndarray | None = None  # J of contract_sigma_ud
-
-    def update_mode(self, t: float) -> None:
-        """Stale-tracker flags, convergence test on the UD variances, and the mode."""
-        f, stale_s, last = self.flags, self.si.st_stale_s, self.last_valid_st  # type: ignore[attr-defined]
-        for j, bit in _STALE_BITS:
-            f = (f | bit) if t - last.get(j, -math.inf) > stale_s else (f & ~bit)
-        if not self.att_valid:
-            self.flags, self.mode = f, "init"
-            return
-        conv = self._cov_converged()
-        f = (f & ~_NOT_CONVERGED) if conv else (f | _NOT_CONVERGED)
-        self.flags = f
-        if f & _NUMERIC or self.excluded.any():
-            self.mode = "degraded"
-        else:
-            self.mode = "converged" if conv else "converging"
-
-    def _cov_converged(self) -> bool:
-        """Every parameter variance within its convergence threshold (UD variances, P not formed;
-        the dense reference overrides it)."""
-        return bool(ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3))
 
     def att_sigma(self) -> list[float]:
         """Attitude 1σ, body axes [rad] (from the UD variances)."""

@@ -12,6 +12,7 @@ import math
 
 from radical_rt._jit import kernel
 from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.loop_layout import CNT_FLAGS, IO_MODE
 from radical_rt.engine.steps import (
     begin_attitude_init,
     fold,
@@ -20,22 +21,25 @@ from radical_rt.engine.steps import (
     pop_parity,
     queue_parity,
     reset_parity,
+    window_state,
 )
 
 _PQ_I = E_INDEX["pq_i"]
 
-EV_BEGIN_ATTITUDE_INIT, EV_NUMERIC, EV_FLUSH, EV_RESET_PARITY = 0, 1, 2, 3  # engine_event codes
+# engine_event codes
+EV_BEGIN_ATTITUDE_INIT, EV_NUMERIC, EV_FLUSH, EV_RESET_PARITY, EV_WINDOW_STATE = 0, 1, 2, 3, 4
 
 
 @kernel
-def engine_event(code, arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_t, s_att,
+def engine_event(code, arg, t_arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_t, s_att,
                  s_last1, s_last2, s_mode, s_flags, s_nis_par):
     """One of the engine's steps run for Python (commands, checks, the end of a stream) on the
     packed state, with the scalar state loaded as for :func:`run_release`:
     EV_BEGIN_ATTITUDE_INIT (the attitude is lost; steps.begin_attitude_init), EV_NUMERIC (a
     numeric fault with code ``arg``; steps.numeric_fault), EV_FLUSH (the end of a stream: the
     open parity sum queued, every queued sum updated, the correction folded), EV_RESET_PARITY
-    (the open parity sum dropped)."""
+    (the open parity sum dropped), EV_WINDOW_STATE (the flags and the mode after a close at
+    event time ``t_arg``, steps.window_state)."""
     load_scalars(io, cnt, s_t, s_locked, s_sig_t, math.inf, math.inf, s_att, s_last1, s_last2,
                  s_mode, s_flags, s_nis_par)
     E = unpack(fb, ib, bb, lay)
@@ -50,3 +54,7 @@ def engine_event(code, arg, fb, ib, bb, lay, cfg, io, cnt, s_t, s_locked, s_sig_
         fold(E, io, cnt)
     elif code == EV_RESET_PARITY:
         reset_parity(E)
+    elif code == EV_WINDOW_STATE:
+        f, mode = window_state(E, cfg, io, cnt, t_arg)
+        cnt[CNT_FLAGS] = f
+        io[IO_MODE] = mode

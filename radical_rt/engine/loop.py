@@ -49,7 +49,6 @@ from radical_rt.engine.loop_layout import (
     CFG_PROP_WINDOW,
     CFG_ST_MIN_STARS,
     CFG_ST_REF_STARS,
-    CFG_ST_STALE,
     CFG_TIMING_CONSIDER,
     CNT_CONSIDER,
     CNT_EDITED,
@@ -66,8 +65,6 @@ from radical_rt.engine.loop_layout import (
     CNT_USED,
     IO_ATT_VALID,
     IO_LAST_ST,
-    IO_LAST_ST1,
-    IO_LAST_ST2,
     IO_MODE,
     IO_NIS,
     IO_SIG_T,
@@ -77,18 +74,18 @@ from radical_rt.engine.loop_layout import (
     IO_WAKE_T,
 )
 from radical_rt.engine.steps import (
-    MODE_INIT,
     close_window,
     fold,
     init_attitude,
     load_scalars,
     numeric_fault,
     warm_reset,
+    window_state,
 )
 from radical_rt.fdi.fdi_bank import BI_ON, append_rows, bank_sample
 from radical_rt.kernels.model import tracker_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
-from radical_rt.kernels.ud import decorrelate, variances_within
+from radical_rt.kernels.ud import decorrelate
 from radical_rt.kernels.updates import (
     gated_update,
     gated_update_consider,
@@ -102,7 +99,6 @@ _ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
 _ST1_EDITED, _ST2_EDITED = int(Flag.ST1_EDITED), int(Flag.ST2_EDITED)
 _NOT_CONVERGED, _NUMERIC = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
 _GYRO_GAP = int(Flag.GYRO_GAP)
-MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = 0.0, 1.0, 2.0  # io[IO_MODE]: the engine's mode
 _TIMING_RATIO = 1e-4  # the timing term is negligible below this share of the tracker variance
 
 # positions in E of its arrays, by key (engine_layout.SLOTS declares the order once)
@@ -135,27 +131,11 @@ _ZWBUF, _LBUF = E_INDEX["zwbuf"], E_INDEX["Lbuf"]
 @inline_kernel
 def _window_due(E, cfg, io, cnt, t_event):
     """Whether the window hook (Engine.on_window(t_event)) has work after a close: the flags
-    differ from those at the start of the call or would change (stale trackers, convergence),
-    the mode would change, a parity sum was queued (with cfg[CFG_HOOK_SUM]), the event time
-    reached wake_t or the engine time wake_e (see the module docstring)."""
-    excluded, U, d, var_w, conv_var = E[_EXCLUDED], E[_U], E[_D], E[_VAR_W], E[_CONV_VAR]
-    f = cnt[CNT_FLAGS]
-    f = (f | _ST1_STALE) if t_event - io[IO_LAST_ST1] > cfg[CFG_ST_STALE] else (f & ~_ST1_STALE)
-    f = (f | _ST2_STALE) if t_event - io[IO_LAST_ST2] > cfg[CFG_ST_STALE] else (f & ~_ST2_STALE)
-    if io[IO_ATT_VALID] == 0.0:
-        mode = MODE_INIT
-    else:
-        if variances_within(U, d, var_w, conv_var, 3):
-            f &= ~_NOT_CONVERGED
-        else:
-            f |= _NOT_CONVERGED
-        if f & _NUMERIC:
-            mode = MODE_DEGRADED
-        else:
-            mode = MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED
-            for i in range(excluded.shape[0]):
-                if excluded[i]:
-                    mode = MODE_DEGRADED
+    differ from those at the start of the call or would change (:func:`steps.window_state`:
+    stale trackers, convergence), the mode would change, a parity sum was queued (with
+    cfg[CFG_HOOK_SUM]), the event time reached wake_t or the engine time wake_e (see the module
+    docstring)."""
+    f, mode = window_state(E, cfg, io, cnt, t_event)
     return (f != cnt[CNT_FLAGS0] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
             or io[IO_T] >= io[IO_WAKE_E] or (cfg[CFG_HOOK_SUM] != 0.0 and cnt[CNT_PAR_SUMS] > 0))
 

@@ -18,14 +18,15 @@ import numpy as np
 from radical_rt.contract.flags import Flag
 from radical_rt.engine import loop as lp
 from radical_rt.engine import loop_layout as FL
+from radical_rt.engine import steps
 from radical_rt.engine.events import engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
 ST_KIND = {1: "st1", 2: "st2"}
 ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
-MODE_CODE = {"init": -1.0, "converging": lp.MODE_CONVERGING, "converged": lp.MODE_CONVERGED,
-             "degraded": lp.MODE_DEGRADED}  # IO_MODE of radical_rt.engine.loop_layout
+MODE_CODE = {"init": steps.MODE_INIT, "converging": steps.MODE_CONVERGING,
+             "converged": steps.MODE_CONVERGED, "degraded": steps.MODE_DEGRADED}  # IO_MODE
 _MODE_NAME = {v: k for k, v in MODE_CODE.items()}
 _NO_SUM = None  # no parity sum waiting for the window hook
 
@@ -201,10 +202,11 @@ class LoopShell:
                 self.nis_locked["parity"][1] += nis_sum - self.nis_sum.get("parity", 0.0)
             self.nis_sum["parity"] = nis_sum
 
-    def _event(self, code: int, arg: int = 0) -> None:
-        """Run :func:`radical_rt.engine.events.engine_event` ``code`` on the engine's state (EV_*)."""
+    def _event(self, code: int, arg: int = 0, t: float = 0.0) -> None:
+        """Run :func:`radical_rt.engine.events.engine_event` ``code`` (EV_*; int ``arg``, time
+        ``t`` [s]) on the engine's state."""
         b = self._loop_begin()
-        engine_event(code, arg, self._fb, self._ib, self._bb, self._lay, self._cfg,
+        engine_event(code, arg, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
                         self._io, self._cnt, b[0], b[1], b[2], b[5], b[6], b[7],
                         b[8], b[9], b[10])
         self._loop_end()

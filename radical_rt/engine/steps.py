@@ -67,12 +67,15 @@ from radical_rt.engine.loop_layout import (
 )
 from radical_rt.kernels.model import fold_correction, parity_from_stats, quat_from_tracker
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
-from radical_rt.kernels.ud import reset_leading_block, variances
+from radical_rt.kernels.ud import reset_leading_block, variances, variances_within
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 
 NUMERIC_GEOMETRY = -1  # cnt[CNT_NUMERIC_CODE] of a singular sense-axis geometry (else a UD status)
-MODE_INIT, MODE_CONVERGING = -1.0, 0.0  # io[IO_MODE] codes set here (loop has the others)
+# io[IO_MODE]: the engine's mode ("init", "converging", "converged", "degraded")
+MODE_INIT, MODE_CONVERGING, MODE_CONVERGED, MODE_DEGRADED = -1.0, 0.0, 1.0, 2.0
 _NUMERIC, _GYRO_GAP = int(Flag.NUMERIC), int(Flag.GYRO_GAP)
+_ST1_STALE, _ST2_STALE = int(Flag.ST1_STALE), int(Flag.ST2_STALE)
+_NOT_CONVERGED = int(Flag.NOT_CONVERGED)
 
 _EXCLUDED, _XP, _Q, _A = E_INDEX["excluded"], E_INDEX["xp"], E_INDEX["q"], E_INDEX["A"]
 _W, _UAX, _VAX = E_INDEX["geo.W"], E_INDEX["geo.U"], E_INDEX["geo.V"]
@@ -87,6 +90,7 @@ _KAPPA_LAST, _HBUF = E_INDEX["kappa_last"], E_INDEX["Hbuf"]
 _FBUF, _SBUF, _INNOV, _SIG = E_INDEX["Fbuf"], E_INDEX["Sbuf"], E_INDEX["innov"], E_INDEX["sig"]
 _F_W, _V_W, _K_W = E_INDEX["ws.f"], E_INDEX["ws.v"], E_INDEX["ws.k"]
 _ST_SIGMA, _P0, _SCALE_MASK = E_INDEX["st_sigma"], E_INDEX["p0"], E_INDEX["scale_mask"]
+_CONV_VAR = E_INDEX["conv_var"]
 _PQ, _PQ_I = E_INDEX["pq"], E_INDEX["pq_i"]
 _PAR_INNOV, _PAR_SIG = E_INDEX["par_innov"], E_INDEX["par_sig"]
 _Z_PAR, _H_PAR = E_INDEX["z_par"], E_INDEX["H_par"]
@@ -384,3 +388,25 @@ def load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1
     for i in range(CNT_USED, CNT_END):
         cnt[i] = 0
     cnt[CNT_MASKED] = -1
+
+
+@inline_kernel
+def window_state(E, cfg, io, cnt, t_event):
+    """The flags and the mode code after a close at event time t_event [s]: ST<j>_STALE when
+    tracker j's last valid sample is older than st_stale; without an attitude mode init;
+    otherwise NOT_CONVERGED unless every parameter variance is within its threshold (UD
+    variances), and the mode degraded (NUMERIC, or a gyro excluded), converging or converged.
+    Returns (flags, mode); the loop compares them (its window test), the window hook applies
+    them (EV_WINDOW_STATE)."""
+    f = cnt[CNT_FLAGS]
+    f = (f | _ST1_STALE) if t_event - io[IO_LAST_ST1] > cfg[CFG_ST_STALE] else (f & ~_ST1_STALE)
+    f = (f | _ST2_STALE) if t_event - io[IO_LAST_ST2] > cfg[CFG_ST_STALE] else (f & ~_ST2_STALE)
+    if io[IO_ATT_VALID] == 0.0:
+        return f, MODE_INIT
+    if variances_within(E[_U], E[_D], E[_VAR_W], E[_CONV_VAR], 3):
+        f &= ~_NOT_CONVERGED
+    else:
+        f |= _NOT_CONVERGED
+    if f & _NUMERIC or any_excluded(E):
+        return f, MODE_DEGRADED
+    return f, (MODE_CONVERGING if f & _NOT_CONVERGED else MODE_CONVERGED)

@@ -73,6 +73,29 @@ class ReferenceEngine(Engine):
     def set_parity_queue(self, items) -> None:
         self.queue = [(t, np.array(y, float), np.array(tt, float), nz) for t, y, tt, nz in items]
 
+    def update_mode(self, t: float) -> None:
+        """Stale-tracker flags, convergence test on the UD variances, and the mode."""
+        stale_bits = ((1, int(Flag.ST1_STALE)), (2, int(Flag.ST2_STALE)))
+        not_converged, numeric = int(Flag.NOT_CONVERGED), int(Flag.NUMERIC)
+        f, stale_s, last = self.flags, self.si.st_stale_s, self.last_valid_st
+        for j, bit in stale_bits:
+            f = (f | bit) if t - last.get(j, -math.inf) > stale_s else (f & ~bit)
+        if not self.att_valid:
+            self.flags, self.mode = f, "init"
+            return
+        conv = self._cov_converged()
+        f = (f & ~not_converged) if conv else (f | not_converged)
+        self.flags = f
+        if f & numeric or self.excluded.any():
+            self.mode = "degraded"
+        else:
+            self.mode = "converged" if conv else "converging"
+
+    def _cov_converged(self) -> bool:
+        """Every parameter variance within its convergence threshold (UD variances, P not formed;
+        the dense reference overrides it)."""
+        return bool(ud.variances_within(self.U, self.d, self.ws.var, self.conv_var, 3))
+
     # ---------------------------------------------------------------- the event loop
     def release(self, arrays, a: int, z: int, events, predict=None) -> None:
         """As Engine.release: the FDI history first, then per tracker event the gyro samples up
