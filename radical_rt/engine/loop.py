@@ -82,7 +82,7 @@ from radical_rt.engine.steps import (
     warm_reset,
     window_state,
 )
-from radical_rt.fdi.fdi_bank import BI_ON, append_rows, bank_sample
+from radical_rt.fdi.fdi_bank import BI_ON, BK_BI, append_rows, bank_sample
 from radical_rt.kernels.model import tracker_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.ud import decorrelate
@@ -282,7 +282,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     through the queue's samples z..q_end−1 and the clock's held-back read, clock state
     clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω.
     bk: the running FDI hypothesis bank's arrays (radical_rt.fdi.fdi_hypotheses.HypothesisBank.
-    kernel_args; idle_kernel_args with bk[34][BI_ON] = 0 when none runs here): each tracker event
+    kernel_args, layout fdi_bank.BK_SLOTS; idle_kernel_args with bi[BI_ON] = 0 when none runs here): each tracker event
     the kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at that sample.
@@ -293,7 +293,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
-    bk_on = bk[34]  # the bank's integer controls bi (radical_rt.fdi.fdi_bank.BI_*; bank_sample)
+    bk_on = bk[BK_BI]  # the bank's integer controls bi (radical_rt.fdi.fdi_bank.BI_*)
     while e < n_ev:
         epoch = ev_f[e, 0]
         up = k

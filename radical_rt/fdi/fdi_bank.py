@@ -411,10 +411,24 @@ def bank_run(f, st, br, i0, end, q_meas, n_stars, epoch, st2, R1, R2, phi, phi_c
     return bad
 
 
-#: bank_sample's integer and float controls (the last two entries of the bank's kernel tuple,
-#: radical_rt.fdi.fdi_hypotheses.HypothesisBank.kernel_args)
+#: bank_sample's integer and float controls (the entries "bi" and "bf" of the bank's tuple)
 BI_ON, BI_I0, BI_END, BI_PHI_COL, BI_LAT_COL, BI_K, BI_STEPS, BI_BAD = range(8)
 BF_TAU, BF_REF_STARS, BF_GATE, BF_LLR_MIN, BF_ARW = range(5)
+
+#: the bank's arrays as the compiled release takes them (the tuple bk of :func:`bank_sample`,
+#: built by radical_rt.fdi.fdi_hypotheses.HypothesisBank.kernel_args, its idle stand-in by
+#: idle_kernel_args), declared once: name, rank, dtype, in tuple order. The gyro history's
+#: blocks f, st, br; the stacked hypotheses' state and work; phi (3,), st_sigma (3,), the
+#: consistency thresholds thr (K,); the controls bi (BI_*), bf (BF_*).
+BK_SLOTS = tuple((name, int(spec[0]), {"f": "float64", "i": "int64", "b": "bool"}[spec[1]])
+                 for name, spec in (item.split(":") for item in """
+    f:2f st:1i br:1b masks:2b xp:1f A:2f Minv:2f Gp:2f N_none:2f q:2f omega:2f tlast:1f
+    undetermined:1i Phi_aa:3f Phi_ap:3f Q_aa:3f Ptt:3f Ptp:3f Ppp:2f ll:1f nis:1f nis_k:1f
+    logdet_k:1f par_y:2f par_t:2f acc_i:1i acc_f:1f th_acc:1f W33:3f W3p:3f W4:2f phi:1f
+    st_sigma:1f thr:1f bi:1i bf:1f""".split()))
+BK_INDEX = {name: i for i, (name, _nd, _dt) in enumerate(BK_SLOTS)}  # name → position in bk
+BK_F, BK_ST, BK_BR, BK_SIG, BK_BI, BK_BF = (BK_INDEX[n] for n in ("f", "st", "br", "st_sigma",
+                                                                 "bi", "bf"))
 
 
 @kernel
@@ -449,6 +463,16 @@ def decision_due(ll, nis, thr, k, llr_min):
     return decide(ll, nis, thr, k, llr_min)[0] != 0
 
 
+# positions in bk of its arrays, by name (BK_SLOTS declares the order once)
+(_F, _ST, _BR, _MASKS, _XP, _A, _MINV, _GP, _N_NONE, _Q, _OMEGA, _TLAST, _UNDET, _PHI_AA, _PHI_AP,
+ _Q_AA, _PTT, _PTP, _PPP, _LL, _NIS, _NIS_K, _LOGDET_K, _PAR_Y, _PAR_T, _ACC_I, _ACC_F, _TH_ACC,
+ _W33, _W3P, _W4, _PHI, _SIG, _THR, _BI, _BF) = (BK_INDEX[n] for n in (
+    "f", "st", "br", "masks", "xp", "A", "Minv", "Gp", "N_none", "q", "omega", "tlast",
+    "undetermined", "Phi_aa", "Phi_ap", "Q_aa", "Ptt", "Ptp", "Ppp", "ll", "nis", "nis_k",
+    "logdet_k", "par_y", "par_t", "acc_i", "acc_f", "th_acc", "W33", "W3p", "W4", "phi",
+    "st_sigma", "thr", "bi", "bf"))
+
+
 @kernel
 def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax):
     """One valid tracker sample (q_meas (4,) q_st_from_inertial, n_stars, epoch [s], mounting
@@ -458,9 +482,13 @@ def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax
     phi (3,), st_sigma (3,), thr (K,), bi int64 (8,) BI_*, bf float64 (5,) BF_*) and the engine's
     geometry W, U_ax, V_ax; bi[BI_K] and bi[BI_STEPS] += 1, bi[BI_BAD] += the hypotheses whose S
     was not positive definite. Returns :func:`decision_due` (True: hand over to Python)."""
-    (f, st, br, masks, xp, A, Minv, Gp, N_none, q, omega, tlast, undetermined, Phi_aa, Phi_ap,
-     Q_aa, Ptt, Ptp, Ppp, ll, nis, nis_k, logdet_k, par_y, par_t, acc_i, acc_f, th_acc, W33, W3p,
-     W4, phi, st_sigma, thr, bi, bf) = bk
+    f, st, br, masks, xp, A = bk[_F], bk[_ST], bk[_BR], bk[_MASKS], bk[_XP], bk[_A]
+    Minv, Gp, N_none, q, omega = bk[_MINV], bk[_GP], bk[_N_NONE], bk[_Q], bk[_OMEGA]
+    tlast, undetermined, Phi_aa, Phi_ap = bk[_TLAST], bk[_UNDET], bk[_PHI_AA], bk[_PHI_AP]
+    Q_aa, Ptt, Ptp, Ppp, ll, nis = bk[_Q_AA], bk[_PTT], bk[_PTP], bk[_PPP], bk[_LL], bk[_NIS]
+    nis_k, logdet_k, par_y, par_t = bk[_NIS_K], bk[_LOGDET_K], bk[_PAR_Y], bk[_PAR_T]
+    acc_i, acc_f, th_acc, W33, W3p = bk[_ACC_I], bk[_ACC_F], bk[_TH_ACC], bk[_W33], bk[_W3P]
+    W4, phi, st_sigma, thr, bi, bf = bk[_W4], bk[_PHI], bk[_SIG], bk[_THR], bk[_BI], bk[_BF]
     bad = bank_step(f, st, br, bi[BI_I0], bi[BI_END], q_meas, n_stars, epoch, R_nom, use_phi, phi,
                     bi[BI_PHI_COL], bi[BI_LAT_COL], bf[BF_TAU], st_sigma, bf[BF_REF_STARS], sig_t,
                     bf[BF_GATE], masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none, bf[BF_ARW], q,

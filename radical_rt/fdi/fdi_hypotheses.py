@@ -30,6 +30,11 @@ from radical_rt.fdi.fdi_bank import (
     BI_ON,
     BI_PHI_COL,
     BI_STEPS,
+    BK_BR,
+    BK_F,
+    BK_SIG,
+    BK_SLOTS,
+    BK_ST,
     bank_flush,
     bank_propagate,
     bank_run,
@@ -203,14 +208,20 @@ class HypothesisBank:
             self._thr, self._kargs = consistency_thresholds(self.k + rows), None
         f, st, br, i0, _end = gbuf.blocks()
         bk = self._kargs
-        if bk is None or bk[0] is not f or bk[1] is not st or bk[2] is not br or bk[32] is not self._sig:
+        if (bk is None or bk[BK_F] is not f or bk[BK_ST] is not st or bk[BK_BR] is not br
+                or bk[BK_SIG] is not self._sig):
             pw = self._pw
-            bk = self._kargs = (
-                f, st, br, self.masks, self.xp, self.A, self.Minv, self.Gp, self.N_none, self.q,
-                self.omega, self.tlast, self.undetermined, self.Phi_aa, self.Phi_ap, self.Q_aa,
-                self.Ptt, self.Ptp, self.Ppp, self.ll, self.nis, self.nis_k, self.logdet_k, pw[0],
-                pw[1], pw[2], pw[3], pw[4], self._w33, self._w3p, self._w4, self.phi, self._sig,
-                self._thr, self._bi, self._bf)
+            arrays = {
+                "f": f, "st": st, "br": br, "masks": self.masks, "xp": self.xp, "A": self.A,
+                "Minv": self.Minv, "Gp": self.Gp, "N_none": self.N_none, "q": self.q,
+                "omega": self.omega, "tlast": self.tlast, "undetermined": self.undetermined,
+                "Phi_aa": self.Phi_aa, "Phi_ap": self.Phi_ap, "Q_aa": self.Q_aa, "Ptt": self.Ptt,
+                "Ptp": self.Ptp, "Ppp": self.Ppp, "ll": self.ll, "nis": self.nis,
+                "nis_k": self.nis_k, "logdet_k": self.logdet_k, "par_y": pw[0], "par_t": pw[1],
+                "acc_i": pw[2], "acc_f": pw[3], "th_acc": pw[4], "W33": self._w33,
+                "W3p": self._w3p, "W4": self._w4, "phi": self.phi, "st_sigma": self._sig,
+                "thr": self._thr, "bi": self._bi, "bf": self._bf}
+            bk = self._kargs = tuple(arrays[name] for name, _nd, _dt in BK_SLOTS)
         bi, bf = self._bi, self._bf
         bi[BI_ON], bi[BI_I0], bi[BI_END], bi[BI_K] = 1, i0, hist_end, self.k
         bi[BI_STEPS] = bi[BI_BAD] = 0
@@ -283,13 +294,11 @@ class HypothesisBank:
 
 def idle_kernel_args() -> tuple:
     """A stand-in for :meth:`HypothesisBank.kernel_args` when no bank runs in the compiled
-    release: arrays of the same kinds (dimensions, dtypes, C order), empty, with BI_ON = 0."""
-    f8, i8, b1 = np.float64, np.int64, np.bool_
-    kinds = [(2, f8), (1, i8), (1, b1), (2, b1)] + [(1, f8)] + [(2, f8)] * 6 + [(1, f8), (1, i8)]
-    kinds += [(3, f8)] * 5 + [(2, f8)] + [(1, f8)] * 4 + [(2, f8)] * 2 + [(1, i8), (1, f8), (1, f8)]
-    kinds += [(3, f8), (3, f8), (2, f8), (1, f8), (1, f8), (1, f8)]
-    arrays = [np.zeros((0,) * nd, dt) for nd, dt in kinds]
-    return (*arrays, np.zeros(8, i8), np.zeros(5, f8))
+    release: arrays of the kinds BK_SLOTS declares (rank, dtype, C order), empty, except the
+    controls bi (8,) and bf (5,), with BI_ON = 0."""
+    sizes = {"bi": 8, "bf": 5}
+    return tuple(np.zeros((sizes[name],) if name in sizes else (0,) * nd, dtype)
+                 for name, nd, dtype in BK_SLOTS)
 
 
 __all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank", "idle_kernel_args"]

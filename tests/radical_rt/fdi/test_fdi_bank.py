@@ -25,7 +25,8 @@ import pytest
 
 from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
-from radical_rt.fdi.fdi_hypotheses import HypothesisBank
+from radical_rt.fdi.fdi_bank import BK_SLOTS
+from radical_rt.fdi.fdi_hypotheses import HypothesisBank, idle_kernel_args
 from radical_rt.fdi.monitor import FaultMonitor
 from tests.oracles.fdi_bank_py import PythonHypothesisBank
 
@@ -185,7 +186,21 @@ def test_bank_in_the_compiled_release_decides_at_the_same_sample(name, tmp_path,
     after every tracker sample, with far fewer window hooks while the bank runs."""
     fault, duration = SCENARIOS[name]
     path = synth(fault_toml(fault, duration=duration), tmp_path / "fault.mcap")
+    kinds = set()  # (rank, dtype) of every array of the bank tuples the release was given
+    kernel_args = HypothesisBank.kernel_args
+
+    def recorded(self, *a):
+        bk = kernel_args(self, *a)
+        kinds.add(tuple((x.ndim, str(x.dtype), x.flags.c_contiguous) for x in bk))
+        return bk
+
+    monkeypatch.setattr(HypothesisBank, "kernel_args", recorded)
     sp_k, calls_k, steps_k = _bank_calls(path, monkeypatch, in_kernel=True)
+    monkeypatch.setattr(HypothesisBank, "kernel_args", kernel_args)
+    # the tuple follows its one declaration (fdi_bank.BK_SLOTS), as the idle stand-in does
+    declared = tuple((nd, dt, True) for _name, nd, dt in BK_SLOTS)
+    idle = tuple((x.ndim, str(x.dtype), x.flags.c_contiguous) for x in idle_kernel_args())
+    assert kinds == {declared} and idle == declared, kinds
     sp_p, calls_p, steps_p = _bank_calls(path, monkeypatch, in_kernel=False)
     f_k, f_p = sp_k.engine.fdi, sp_p.engine.fdi
     assert steps_p == 0 and steps_k > 0
