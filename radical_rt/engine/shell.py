@@ -102,21 +102,21 @@ class LoopShell:
     # ... and for its prediction when none is asked for (pred[0] = 0)
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
 
-    def _trackers_taken(self, events, e: int, e_stop: int) -> bool:
+    def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """The bookkeeping of the rows e..e_stop−1 of an event block the kernel completed (an
         invalid sample it only counted is skipped): last valid epoch, FDI history and, where the
         update ran, diagnostics and counters, read from the block's arrays in one pass (the FDI's
-        quaternions and the diagnostics are rows of one copy each). Returns whether the last
-        row's update was used."""
+        quaternions and the diagnostics are rows of one copy each)."""
+        if e_stop - e == 1:  # the usual case: one tracker sample per release
+            self._tracker_taken(events, e)
+            return
         f = events.f
         heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
         quats, outs_f = f[e:e_stop, 1:5].copy(), events.out_f[e:e_stop].copy()
         outs_i = events.out_i[e:e_stop].tolist()
         last, fdi = self.last_valid_st, self.fdi
-        used = False
         for r, head in enumerate(heads):
             _status, edited, updated, consider = outs_i[r]
-            used = False
             if updated < 0:  # an invalid sample: the kernel counted it, nothing else to do
                 continue
             j, t_epoch = head[0], epochs[r]
@@ -129,8 +129,25 @@ class LoopShell:
             if consider:
                 self.counters[kind + "_consider"] += 1
             out_f = outs_f[r]
-            used = self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
-        return used
+            self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+
+    def _tracker_taken(self, events, r: int) -> None:
+        """:meth:`_trackers_taken` of the one row r."""
+        _status, edited, updated, consider = events.out_i[r].tolist()
+        if updated < 0:
+            return
+        j, n_stars, _valid, _seq = events.i[r].tolist()
+        t_epoch = float(events.f[r, 0])
+        self.last_valid_st[j] = t_epoch
+        if self.fdi is not None:
+            self.fdi.on_tracker(j, t_epoch, events.f[r, 1:5].copy(), n_stars)
+        if not updated:
+            return
+        kind = ST_KIND[j]
+        if consider:
+            self.counters[kind + "_consider"] += 1
+        out_f = events.out_f[r].copy()
+        self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
 
     # ---------------------------------------------------------------- kernel state
     def _loop_begin(self) -> tuple:
