@@ -21,9 +21,9 @@ from radical_rt.fdi.fdi_bank import (
 )
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
-from radical_rt.kernels.model import tracker_residual
 from radical_rt.kernels.propagate import propagate_window
 from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.kernels.tracker_model import tracker_residual
 
 NH, NPAR, N = 5, 23, 4
 PHI_COL, LAT_COL = 20, 22
@@ -60,7 +60,7 @@ def _rot(rng):
 def _tracker_reference(q_meas, n_stars, R_nom, phi, dt_ex, st_sigma, ref, sig_t, gate, q, omega, Ptt,
                        Ptp, Ppp, ll, nis):
     """Dense numpy form of one tracker sample for every hypothesis (ST2: φ2 and τ columns)."""
-    from radical_rt.kernels.model import apply_body_rotation
+    from radical_rt.kernels.rotation import apply_body_rotation
     out = []
     for h in range(NH):
         qe = q[h].copy()
@@ -103,7 +103,7 @@ def test_tracker_kernel_matches_dense_schmidt_update():
     # R_st_from_inertial = R(noise) R_nom R(φ2)ᵀ R_body_from_inertial at the extrapolated epoch
     from scipy.spatial.transform import Rotation
 
-    from radical_rt.kernels.model import apply_body_rotation
+    from radical_rt.kernels.rotation import apply_body_rotation
     qe = q[0].copy()
     apply_body_rotation(qe, omega[0] * 0.013, np.empty(4), np.empty(4))
     Rm = (Rotation.from_rotvec(2e-5 * rng.standard_normal(3)).as_matrix() @ R_nom

@@ -58,8 +58,9 @@ from radical_rt.engine.loop_layout import (
     IO_SIG_T,
     IO_T,
 )
-from radical_rt.kernels.model import fold_correction, parity_from_stats, quat_from_tracker
+from radical_rt.kernels.model import fold_correction, parity_from_stats
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
+from radical_rt.kernels.tracker_model import quat_from_tracker
 from radical_rt.kernels.ud import reset_leading_block, variances
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 

@@ -14,7 +14,7 @@ The bank (:class:`radical_rt.fdi.fdi_hypotheses.HypothesisBank`) keeps the state
 own propagation kernel (:func:`radical_rt.kernels.propagate.propagate_window`, the hypothesis's exclusion
 mask, the snapshot calibration) and propagates the covariance blocks (Schmidt time update).
 :func:`bank_tracker` applies one star-tracker sample to all hypotheses: the engine's tracker model
-(:func:`radical_rt.kernels.model.tracker_residual`, noise with the time-line term
+(:func:`radical_rt.kernels.tracker_model.tracker_residual`, noise with the time-line term
 :func:`radical_rt.kernels.updates.timing_noise`), the innovation covariance S (3, 3), its Cholesky factor
 (:func:`radical_rt.kernels.ud.cholesky_lower`; no LAPACK), NIS and ln det S, the gated log-likelihood and
 the Schmidt (consider) gain and correction of the attitude states only (Schmidt 1966; the
@@ -29,16 +29,10 @@ import math
 import numpy as np
 
 from radical_rt._jit import OK, kernel
-from radical_rt.kernels.model import (
-    apply_body_rotation,
-    correct_increment_lin,
-    masked_pinv,
-    select_increments,
-    tracker_error,
-    tracker_geometry,
-)
+from radical_rt.kernels.model import correct_increment_lin, masked_pinv, select_increments
 from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work
-from radical_rt.kernels.rotation import quat_mul_into, rotvec_to_quat_into
+from radical_rt.kernels.rotation import apply_body_rotation, quat_mul_into, rotvec_to_quat_into
+from radical_rt.kernels.tracker_model import tracker_error, tracker_geometry
 from radical_rt.kernels.ud import cholesky_lower
 from radical_rt.kernels.updates import timing_noise
 

@@ -21,9 +21,10 @@ from radical_rt.engine.engine_state import param_slice
 from radical_rt.engine.filter import Engine
 from radical_rt.engine.shell import ST_EDITED_BIT, ST_KIND
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import parity_from_stats, quat_from_tracker, tracker_rows
+from radical_rt.kernels.model import parity_from_stats
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
+from radical_rt.kernels.tracker_model import quat_from_tracker, tracker_rows
 from radical_rt.kernels.updates import (
     gated_update,
     gated_update_consider,
