@@ -9,7 +9,7 @@ every operation are the engine's own. The
 covariance P (ns, ns) is the single source of truth:
 
 ============================  =================================  ==================================
-engine operation              UD engine (radical_rt.kernels.ud/updates)  here
+engine operation              UD engine (kernels.ud, ud_time, updates)  here
 ============================  =================================  ==================================
 window time update            structured_time_update (MWGS-free  P ← ΦPΦᵀ + Q, Φ = [[Φ_aa, Φ_ap],
                               attitude-first partition)          [0, I]] (exploits the same blocks)
