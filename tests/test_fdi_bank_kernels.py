@@ -1,6 +1,6 @@
-"""Unit tests of the bank kernels (radical_rt/fdi/fdi_bank.py) against dense numpy formulas of
-docs/fdi.md §3.2, on seeded random inputs; the same tests run again with NUMBA_DISABLE_JIT=1 in a
-subprocess (the kernels' source as plain Python)."""
+"""Unit tests of the bank kernels (radical_rt/fdi/fdi_bank.py, fdi_bank_propagate.py) against
+dense numpy formulas of docs/fdi.md §3.2, on seeded random inputs; the same tests run again with
+NUMBA_DISABLE_JIT=1 in a subprocess (the kernels' source as plain Python)."""
 
 from __future__ import annotations
 
@@ -12,13 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.fdi.fdi_bank import (
-    bank_flush,
-    bank_propagate,
-    bank_tracker,
-    decision_due,
-    rows_after,
-)
+from radical_rt.fdi.fdi_bank import bank_tracker, decision_due
+from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, rows_after
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
 from radical_rt.kernels.propagate import propagate_window
@@ -257,12 +252,13 @@ def test_numba_cache_fingerprint_covers_the_bank_kernels(tmp_path, monkeypatch):
     """The bank kernels embed propagate/model/ud/updates kernels: their module is one of the
     kernel modules whose contents key every cached kernel of the package (radical_rt._jit)."""
     from radical_rt import _jit
-    from radical_rt.fdi import fdi_bank
-    src = Path(fdi_bank.__file__)
+    from radical_rt.fdi import fdi_bank, fdi_bank_propagate
     pkg = tmp_path / "pkg"
     pkg.mkdir()
-    (pkg / src.name).write_bytes(src.read_bytes())
     monkeypatch.setattr(_jit, "_PACKAGE", pkg)
-    before = _jit._fingerprint(pkg)
-    (pkg / src.name).write_bytes(src.read_bytes() + b"\n# edited\n")
-    assert _jit._fingerprint(pkg) != before
+    for mod in (fdi_bank, fdi_bank_propagate):
+        src = Path(mod.__file__)
+        (pkg / src.name).write_bytes(src.read_bytes())
+        before = _jit._fingerprint(pkg)
+        (pkg / src.name).write_bytes(src.read_bytes() + b"\n# edited\n")
+        assert _jit._fingerprint(pkg) != before

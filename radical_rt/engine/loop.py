@@ -91,7 +91,8 @@ from radical_rt.engine.steps import (
     reset_parity,
     warm_reset,
 )
-from radical_rt.fdi.fdi_bank import BI_ON, append_rows, bank_sample
+from radical_rt.fdi.fdi_bank import BI_ON, bank_sample
+from radical_rt.fdi.fdi_bank_propagate import append_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate, variances_within

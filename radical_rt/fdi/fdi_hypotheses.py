@@ -30,11 +30,10 @@ from radical_rt.fdi.fdi_bank import (
     BI_ON,
     BI_PHI_COL,
     BI_STEPS,
-    bank_flush,
-    bank_propagate,
     bank_run,
     decide,
 )
+from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import refresh_axes
