@@ -267,7 +267,7 @@ class Engine(LoopShell, EngineState):
 
     def apply_isolation(self, gyro: int, state) -> None:
         """Apply the FDI's isolation of ``gyro`` (radical_rt.fdi.monitor): exclude it; with a
-        :class:`radical_rt.fdi.monitor.Reconfiguration` ``state``, take its U, d, xp, q, omega and add
+        :class:`radical_rt.fdi.monitor_isolation.Reconfiguration` ``state``, take its U, d, xp, q, omega and add
         the parameter process noise over its dt_noise; with None keep the covariance and restart
         the attitude from the trackers (warm start). Then the window's correction and parity sums
         are void and the geometry is rebuilt over the remaining gyros."""
