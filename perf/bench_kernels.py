@@ -9,7 +9,7 @@ From code: ``perf.bench_kernels.run(profile="quick", out_dir=None) -> dict``.
 
 How to read the table (all times are µs per call, Python call overhead included, ≈ 0.3 µs):
 
-* ``UD best`` / ``UD p99``: the radical_rt.kernels.ud kernel; best = the lowest mean over ``repeat``
+* ``UD best`` / ``UD p99``: the radical_rt.kernels.ud / ud_time kernel; best = the lowest mean over ``repeat``
   loops of ``number`` calls; p99 = 99th percentile of individually timed calls (tail latency).
 * ``dense numpy``: the same step on a dense P with numpy (Joseph form
   (I−Kh)P(I−Kh)ᵀ + rKKᵀ for an update, ΦPΦᵀ + Q for a time update, P + c aaᵀ, P_ii += c).
@@ -59,18 +59,18 @@ t0 = time.perf_counter()
 import numba  # noqa: F401
 t1 = time.perf_counter()
 import numpy as np
-from radical_rt.kernels import ud
+from radical_rt.kernels import ud, ud_time
 t2 = time.perf_counter()
 n = 26; ws = ud.UDWorkspace(n); U = np.zeros((n, n)); d = np.zeros(n)
 calls = {
     "factor_ud": lambda: ud.factor_ud(np.eye(n), U, d),
     "bierman_update": lambda: ud.bierman_update(U, d, np.ones(n), 1.0, ws.k, ws.f, ws.v),
-    "structured_time_update": lambda: ud.structured_time_update(
+    "structured_time_update": lambda: ud_time.structured_time_update(
         U, d, 3, np.eye(3), np.zeros((3, n - 3)), np.eye(3), ws.struct),
-    "mwgs_time_update": lambda: ud.mwgs_time_update(U, d, np.eye(n), np.eye(n), np.ones(n),
+    "mwgs_time_update": lambda: ud_time.mwgs_time_update(U, d, np.eye(n), np.eye(n), np.ones(n),
                                                     ws.Y, ws.Dw, ws.c),
-    "agee_turner": lambda: ud.agee_turner(U, d, 1.0, np.ones(n), ws.a),
-    "add_diagonal_noise": lambda: ud.add_diagonal_noise(U, d, np.arange(3, n), np.ones(n - 3),
+    "agee_turner": lambda: ud_time.agee_turner(U, d, 1.0, np.ones(n), ws.a),
+    "add_diagonal_noise": lambda: ud_time.add_diagonal_noise(U, d, np.arange(3, n), np.ones(n - 3),
                                                         ws.a),
 }
 first = {}
@@ -157,7 +157,7 @@ def _filterpy(P, Phi, Q):
 
 def run_kernels(number: int, repeat: int, samples: int) -> tuple[dict, dict]:
     """Time every case; returns (results, info)."""
-    from radical_rt.kernels import ud
+    from radical_rt.kernels import ud, ud_time
 
     rng = np.random.default_rng(SEED)
     P, Phi, Q_aa, h_dense, h_sparse = _problem(rng)
@@ -206,15 +206,15 @@ def run_kernels(number: int, repeat: int, samples: int) -> tuple[dict, dict]:
         "bierman_update_sparse_st": (ud.bierman_update, (h_sparse, r, ws.k, ws.f, ws.v),
                                      partial(joseph, h=h_sparse),
                                      fp_update and partial(fp_update, z, r, H_sparse)),
-        "structured_time_update": (ud.structured_time_update,
+        "structured_time_update": (ud_time.structured_time_update,
                                    (M_ATT, Phi_aa, Phi_ap, Q_aa, ws.struct), dense_predict,
                                    fp_predict),
-        "mwgs_time_update_r3": (ud.mwgs_time_update, (Phi, G3, q3, ws.Y, ws.Dw, ws.c),
+        "mwgs_time_update_r3": (ud_time.mwgs_time_update, (Phi, G3, q3, ws.Y, ws.Dw, ws.c),
                                 dense_predict, fp_predict),
-        "mwgs_time_update_r26": (ud.mwgs_time_update, (Phi, G26, q26, ws.Y, ws.Dw, ws.c),
+        "mwgs_time_update_r26": (ud_time.mwgs_time_update, (Phi, G26, q26, ws.Y, ws.Dw, ws.c),
                                  partial(dense_predict, Qd=np.diag(q26)), None),
-        "agee_turner": (ud.agee_turner, (1.0, a, ws.a), dense_rank_one, None),
-        "add_diagonal_noise_23": (ud.add_diagonal_noise, (idx, c_noise, ws.a), dense_diag, None),
+        "agee_turner": (ud_time.agee_turner, (1.0, a, ws.a), dense_rank_one, None),
+        "add_diagonal_noise_23": (ud_time.add_diagonal_noise, (idx, c_noise, ws.a), dense_diag, None),
     }
     results = {}
     for name, (kernel, args, dense_step, fp_call) in cases.items():

@@ -18,7 +18,7 @@ Per run, at the end of the stream:
 
 * parameter NEES in the engine's *internal* parameter coordinates (docs/engine.md §3.1 "NEES
   note"), over every parameter state whose truth is known: the contract's groups from
-  ``/truth/params`` (mapped with :func:`radical_rt.kernels.model.internal_from_contract`) and, when the
+  ``/truth/params`` (mapped with :func:`radical_rt.kernels.parametrization.internal_from_contract`) and, when the
   layout has it, the residual tracker latency ``lat`` = ``latency_st`` (truth) − configured
   latency. dof = number of those states (read from ``engine.layout``, never hard-coded);
 * star-tracker and parity NIS: the engine's own sums (``engine.nis_sum``, ``counters[kind_used]``),
@@ -52,7 +52,7 @@ from radical_rt.contract.conventions import to_paper_units
 from radical_rt.contract.params import ParamTable, to_si
 from radical_rt.contract.state import PARAM_GROUPS
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import contract_from_internal, internal_from_contract
+from radical_rt.kernels.parametrization import contract_from_internal, internal_from_contract
 
 #: Moves of the MC scenario (body axis, angle in degrees): +10° then −10° about x, z and y (every
 #: axis turns with both rate signs), at the 2006216 rate (0.3 deg/s, 20 s ramps): 53 s per move.
@@ -108,7 +108,7 @@ def draw_truth(seed: int, table: ParamTable, n_gyro: int = 4,
     """True parameters (paper units, per group) for run ``seed``, drawn from the engine's prior.
 
     x_int ~ N(0, scale²·diag(p0)) over the contract groups in the engine's internal coordinates,
-    then the exact map to the contract's parameters (:func:`radical_rt.kernels.model.contract_from_internal`).
+    then the exact map to the contract's parameters (:func:`radical_rt.kernels.parametrization.contract_from_internal`).
     """
     si = to_si(table.active, n_gyro)
     m = 5 * n_gyro + 3  # b, λ, μ, du, dv (n each), φ2 (3): the contract's groups

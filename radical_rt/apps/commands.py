@@ -55,7 +55,7 @@ import numpy as np
 from radical_rt.contract.conventions import PAPER_UNITS, from_paper_units, to_paper_units
 from radical_rt.contract.params import GROUP_BUMP, RANGES, ParamError, ParamTable
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
-from radical_rt.kernels import ud
+from radical_rt.kernels import ud_time
 from radical_rt.stream.processor import StreamProcessor
 from radical_rt.stream.telemetry import PacketError, PacketSpec, parse_packets
 
@@ -317,7 +317,7 @@ def _bump_dry_run(e: Any, sigma: dict[str, list[float]], mode: str) -> str:
     if mode == "add":
         idx = [e.layout[g].start + k for g, v in sigma.items() for k in range(len(v))]
         c = [float(x) ** 2 for v in sigma.values() for x in v]
-        status = ud.add_diagonal_noise(U, d, np.asarray(idx, np.int64), np.asarray(c),
+        status = ud_time.add_diagonal_noise(U, d, np.asarray(idx, np.int64), np.asarray(c),
                                        np.zeros(e.ns))
     else:
         var = e.variances()
@@ -328,7 +328,7 @@ def _bump_dry_run(e: Any, sigma: dict[str, list[float]], mode: str) -> str:
                 s[sl] = np.sqrt(1.0 + np.asarray(v, float) ** 2 / var[sl])
         if not (np.all(np.isfinite(s)) and s.max() <= BUMP_SCALE_MAX):
             return f"a scale factor would exceed {BUMP_SCALE_MAX:g}"
-        status = ud.scale_states(U, d, s)
+        status = ud_time.scale_states(U, d, s)
     if status != 0 or not (np.all(np.isfinite(U)) and np.all(np.isfinite(d)) and np.all(d > 0)):
         return f"the bumped covariance would not be numerically valid (UD status {status})"
     return ""

@@ -17,7 +17,7 @@ from radical_rt.contract.geometry import Geometry
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
 from radical_rt.engine.engine_layout import SLOTS, slot_problems
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import contract_from_internal, contract_sigma_ud
+from radical_rt.kernels.parametrization import contract_from_internal, contract_sigma_ud
 
 
 class EngineState:
@@ -162,7 +162,7 @@ class EngineState:
     def contract_sigma(self) -> np.ndarray:
         """1σ (npar,) of the contract's parameters: sqrt(diag(J P_pp Jᵀ)) straight from the UD
         factors, Σ_l d_l (J U_pp)²_il (P_pp = U_pp D_p U_ppᵀ because U is unit upper triangular;
-        neither P nor J P Jᵀ is formed; :func:`radical_rt.kernels.model.contract_sigma_ud`). The dense
+        neither P nor J P Jᵀ is formed; :func:`radical_rt.kernels.parametrization.contract_sigma_ud`). The dense
         reference overrides it."""
         npar = self.xp.shape[0]
         if self._sig_work is None or self._sig_work.shape[0] != npar:

@@ -43,7 +43,7 @@ from radical_rt.engine.excitation import ExcitationMonitor
 from radical_rt.engine.hooks import EngineHooks, NoHooks
 from radical_rt.engine.shell import LoopShell
 from radical_rt.fdi.monitor import FaultMonitor
-from radical_rt.kernels import ud
+from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.model import fold_correction, refresh_axes
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
 
@@ -158,15 +158,15 @@ class Engine(LoopShell, EngineState):
     # tests/oracles/dense_engine.py overrides them with its P).
     def _cov_reset_attitude(self, P0) -> None:
         """Attitude covariance ← P0 (3, 3), attitude cross-covariances ← 0, the rest kept."""
-        self._check(ud.reset_leading_block(self.U, self.d, 3, P0, self.ws.struct))
+        self._check(ud_time.reset_leading_block(self.U, self.d, 3, P0, self.ws.struct))
 
     def _cov_add_diagonal(self, idx, c) -> None:
         """P[idx_k, idx_k] += c_k (process noise, additive bump)."""
-        self._check(ud.add_diagonal_noise(self.U, self.d, idx, c, self.ws.a))
+        self._check(ud_time.add_diagonal_noise(self.U, self.d, idx, c, self.ws.a))
 
     def _cov_scale(self, s) -> None:
         """P ← diag(s) P diag(s)."""
-        self._check(ud.scale_states(self.U, self.d, s))
+        self._check(ud_time.scale_states(self.U, self.d, s))
 
     def _covariance(self) -> np.ndarray:
         """P (ns, ns) from the UD factors (outputs and the excitation monitor only)."""
@@ -268,7 +268,7 @@ class Engine(LoopShell, EngineState):
 
     def apply_isolation(self, gyro: int, state) -> None:
         """Apply the FDI's isolation of ``gyro`` (radical_rt.fdi.monitor): exclude it; with a
-        :class:`radical_rt.fdi.monitor.Reconfiguration` ``state``, take its U, d, xp, q, omega and add
+        :class:`radical_rt.fdi.monitor_isolation.Reconfiguration` ``state``, take its U, d, xp, q, omega and add
         the parameter process noise over its dt_noise; with None keep the covariance and restart
         the attitude from the trackers (warm start). Then the window's correction and parity sums
         are void and the geometry is rebuilt over the remaining gyros."""
@@ -279,7 +279,7 @@ class Engine(LoopShell, EngineState):
             self.xp[:] = state.xp
             self.q[:] = state.q
             self.omega[:] = state.omega
-            self._check(ud.add_diagonal_noise(self.U, self.d, self.param_idx,
+            self._check(ud_time.add_diagonal_noise(self.U, self.d, self.param_idx,
                                               self.q_params * state.dt_noise, self.ws.a))
         else:
             self.warm_start(bump=False)

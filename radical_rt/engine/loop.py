@@ -82,9 +82,10 @@ from radical_rt.engine.steps import (
     warm_reset,
     window_state,
 )
-from radical_rt.fdi.fdi_bank import BI_ON, BK_BI, append_rows, bank_sample
-from radical_rt.kernels.model import tracker_rows
+from radical_rt.fdi.fdi_bank import BI_ON, BK_BI, bank_sample
+from radical_rt.fdi.fdi_bank_propagate import append_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
+from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate
 from radical_rt.kernels.updates import (
     gated_update,

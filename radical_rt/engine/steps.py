@@ -65,9 +65,11 @@ from radical_rt.engine.loop_layout import (
     IO_WAKE_E,
     IO_WAKE_T,
 )
-from radical_rt.kernels.model import fold_correction, parity_from_stats, quat_from_tracker
+from radical_rt.kernels.model import fold_correction, parity_from_stats
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
-from radical_rt.kernels.ud import reset_leading_block, variances, variances_within
+from radical_rt.kernels.tracker_model import quat_from_tracker
+from radical_rt.kernels.ud import variances, variances_within
+from radical_rt.kernels.ud_time import reset_leading_block
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 
 NUMERIC_GEOMETRY = -1  # cnt[CNT_NUMERIC_CODE] of a singular sense-axis geometry (else a UD status)

@@ -10,16 +10,20 @@ The bank (:class:`radical_rt.fdi.fdi_hypotheses.HypothesisBank`) keeps the state
   never estimated);
 * ``ll`` (nh,) robust log-likelihood (up to a common constant), ``nis`` (nh,) capped NIS sums.
 
-:func:`bank_propagate` takes all hypotheses through a run of buffered gyro samples with the engine's
-own propagation kernel (:func:`radical_rt.kernels.propagate.propagate_window`, the hypothesis's exclusion
-mask, the snapshot calibration) and propagates the covariance blocks (Schmidt time update).
+The propagation between tracker samples (the gyro history's rows, :func:`bank_propagate`,
+:func:`bank_flush`: the engine's own propagation kernel with the hypothesis's exclusion mask and
+the snapshot calibration, then the Schmidt time update of the covariance blocks) is in
+:mod:`radical_rt.fdi.fdi_bank_propagate`. This module owns the measurement side:
 :func:`bank_tracker` applies one star-tracker sample to all hypotheses: the engine's tracker model
-(:func:`radical_rt.kernels.model.tracker_residual`, noise with the time-line term
+(:func:`radical_rt.kernels.tracker_model.tracker_residual`, noise with the time-line term
 :func:`radical_rt.kernels.updates.timing_noise`), the innovation covariance S (3, 3), its Cholesky factor
 (:func:`radical_rt.kernels.ud.cholesky_lower`; no LAPACK), NIS and ln det S, the gated log-likelihood and
 the Schmidt (consider) gain and correction of the attitude states only (Schmidt 1966; the
 considered-state form of Bierman 1977 ch. VIII). Kernels never raise: a hypothesis whose S is not
 positive definite gets ll = −inf and no correction, and the count of such hypotheses is returned.
+:func:`bank_step` / :func:`bank_run` chain propagation, flush and tracker update for one / m
+tracker samples; :func:`decide` is the decision rule and :func:`bank_sample` the entry of the
+compiled release.
 """
 
 from __future__ import annotations
@@ -29,181 +33,11 @@ import math
 import numpy as np
 
 from radical_rt._jit import OK, kernel
-from radical_rt.kernels.model import (
-    apply_body_rotation,
-    correct_increment_lin,
-    masked_pinv,
-    select_increments,
-    tracker_error,
-    tracker_geometry,
-)
-from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work
-from radical_rt.kernels.rotation import quat_mul_into, rotvec_to_quat_into
+from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, transition_clear
+from radical_rt.kernels.rotation import apply_body_rotation, quat_mul_into, rotvec_to_quat_into
+from radical_rt.kernels.tracker_model import tracker_error, tracker_geometry
 from radical_rt.kernels.ud import cholesky_lower
 from radical_rt.kernels.updates import timing_noise
-
-#: columns of the gyro history's float block (radical_rt.fdi.fdi_history.SampleBuffer): t, dt, var_extra, dθ
-COL_T, COL_DT, COL_VAR, COL_DTH = 0, 1, 2, 3
-
-
-@kernel
-def append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a, z):
-    """The gyro history's append (radical_rt.fdi.fdi_history.SampleBuffer, and the compiled release
-    itself): source rows a..z−1 of t, dt [s], var_extra [rad²], dθ (m, n) [rad], status (int
-    bits), bridged (bool) to rows end.. of the float block f (columns COL_T, COL_DT, COL_VAR,
-    COL_DTH.., room already made), the int block i_blk and the bool block b_blk."""
-    n = dth.shape[1]
-    for r in range(a, z):
-        k = end + r - a
-        f[k, 0], f[k, 1], f[k, 2] = t[r], dt[r], var_extra[r]
-        for c in range(n):
-            f[k, 3 + c] = dth[r, c]
-        i_blk[k], b_blk[k] = status[r], bridged[r]
-
-
-@kernel
-def rows_after(f, i0, end, t_after, t_upto):
-    """Rows a..z−1 of the float block f (time in column COL_T, ascending over rows i0..end−1)
-    with t_after < t ≤ t_upto: (a, z), z ≤ a when there are none (np.searchsorted, side right)."""
-    return _search_right(f, i0, end, t_after), _search_right(f, i0, end, t_upto)
-
-
-@kernel
-def _search_right(f, lo, hi, x):
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if f[mid, COL_T] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@kernel
-def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none,
-                   arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
-                   acc_f, th_acc):
-    """Propagate every hypothesis through the buffered gyro samples with tlast[0] < t ≤ t_end.
-
-    f (m, 3 + n) float block of the gyro history (t [s], dt [s], var_extra [rad²], dθ (n) [rad])
-    whose rows i0..end−1 are in use, st (m,) int64 gyro-invalid bits, br (m,) bool bridged;
-    masks (nh, n) bool: the gyros each hypothesis leaves out; xp, A, W, U_ax, V_ax, Minv, Gp the
-    snapshot calibration and geometry (:func:`radical_rt.kernels.model.refresh_axes`), N_none (n, 0) (no
-    parity sums); arw_var [rad²/s]. In place: q (nh, 4), omega (nh, 3) [rad/s], tlast (1,) [s]
-    the time of the last sample propagated, and per hypothesis the transition accumulated since
-    the last :func:`bank_flush`: Phi_aa (nh, 3, 3), Phi_ap (nh, 3, npar) = ∂θ/∂p, Q_aa (nh, 3, 3)
-    (propagate_window composes them sample by sample). undetermined (nh,) int64 += 1 for a call in
-    which a hypothesis met samples with fewer than three usable gyros. Work: par_y, par_t (2, n),
-    acc_i int64 (4,), acc_f, th_acc (3,). Returns the number of samples propagated.
-    """
-    a, z = rows_after(f, i0, end, tlast[0], t_end)
-    if z <= a:
-        return 0
-    nh, n = masks.shape
-    wk = sample_work(n)  # one set of work arrays for every hypothesis and sample
-    Gm = np.empty((nh, 3, n))  # per hypothesis: the masked pseudo-inverse of the pattern `have`
-    Mm = np.empty((nh, 3, 3))
-    have = np.full(nh, -1, np.int64)
-    have_ok = np.zeros(nh, np.bool_)
-    undet = np.zeros(nh, np.bool_)
-    th_last = np.empty((nh, 3))  # θ̂ [rad] and interval [s] of each hypothesis's last sample
-    h_last = np.zeros(nh)
-    moved = np.zeros(nh, np.bool_)
-    every = sample_work(n)  # the sample corrected once, over every valid gyro
-    no_mask = np.zeros(n, np.bool_)
-    for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
-        dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
-        active_gyros(no_mask, st[k], every.active)
-        correct_increment_lin(dth_k, h_k, xp, every.active, every.c, every.sg, every.s)
-        for h in range(nh):
-            n_act, bits = active_gyros(masks[h], st[k], wk.active)
-            G, Mi = Gp, Minv
-            if n_act < n:
-                if bits != have[h]:  # A is constant over the call: one pseudo-inverse per pattern
-                    have[h], have_ok[h] = bits, masked_pinv(A, wk.active, Mm[h], Gm[h]) >= 0
-                if not have_ok[h]:
-                    undet[h] = True
-                    continue
-                G, Mi = Gm[h], Mm[h]
-            select_increments(wk.active, every.c, every.sg, every.s, wk.c, wk.sg, wk.s)
-            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, q[h], A, W, U_ax, V_ax, Mi, G,
-                             N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y, par_t, acc_i, acc_f,
-                             th_acc, arw_var, wk)
-            th_last[h, 0], th_last[h, 1], th_last[h, 2] = wk.th[0], wk.th[1], wk.th[2]
-            h_last[h], moved[h] = h_k, True
-    for h in range(nh):
-        if undet[h]:
-            undetermined[h] += 1
-        if moved[h]:  # the body rate of its last sample
-            for r in range(3):
-                omega[h, r] = th_last[h, r] / h_last[h]
-    tlast[0] = f[z - 1, COL_T]
-    return z - a
-
-
-@kernel
-def bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, FPtp, GPpp, T):
-    """Schmidt time update of every hypothesis with its accumulated transition, then the
-    accumulators reset (Phi_aa = I, Phi_ap = 0, Q_aa = 0):
-
-        Ptt ← Φ Ptt Φᵀ + Φ Ptp Γᵀ + Γ (Φ Ptp)ᵀ + Γ Ppp Γᵀ + Q (symmetrized),   Ptp ← Φ Ptp + Γ Ppp
-
-    with Φ = Phi_aa[h], Γ = Phi_ap[h], Q = Q_aa[h] (shapes of :func:`bank_propagate`); Ptt
-    (nh, 3, 3), Ptp (nh, 3, npar), Ppp (npar, npar). Work: FPtp, GPpp (3, npar), T (3, 3)."""
-    npar = Ppp.shape[0]
-    for h in range(Ptt.shape[0]):
-        F, G, Q, P, C = Phi_aa[h], Phi_ap[h], Q_aa[h], Ptt[h], Ptp[h]
-        for r in range(3):  # FPtp = Φ Ptp, GPpp = Γ Ppp (rows of Γ are sparse: φ2, τ, left-out gyro)
-            for c in range(npar):
-                FPtp[r, c] = F[r, 0] * C[0, c] + F[r, 1] * C[1, c] + F[r, 2] * C[2, c]
-                GPpp[r, c] = 0.0
-            for k in range(npar):
-                g = G[r, k]
-                if g != 0.0:
-                    for c in range(npar):
-                        GPpp[r, c] += g * Ppp[k, c]
-        for r in range(3):
-            for c in range(3):
-                fpf = 0.0
-                for k in range(3):
-                    fp = 0.0
-                    for j in range(3):
-                        fp += F[r, j] * P[j, k]
-                    fpf += fp * F[c, k]
-                x1 = 0.0
-                x2 = 0.0
-                x3 = 0.0
-                for k in range(npar):
-                    x1 += FPtp[r, k] * G[c, k]
-                    x2 += G[r, k] * FPtp[c, k]
-                    x3 += GPpp[r, k] * G[c, k]
-                T[r, c] = fpf + x1 + x2 + x3 + Q[r, c]
-        for r in range(3):
-            for c in range(3):
-                P[r, c] = 0.5 * (T[r, c] + T[c, r])
-                F[r, c] = 1.0 if r == c else 0.0
-                Q[r, c] = 0.0
-            for c in range(npar):
-                C[r, c] = FPtp[r, c] + GPpp[r, c]
-                G[r, c] = 0.0
-
-
-@kernel
-def transition_clear(Phi_aa, Phi_ap, Q_aa, Ptt):
-    """Whether every hypothesis's accumulated transition is the identity (Phi_aa = I, Phi_ap = 0,
-    Q_aa = 0; shapes of :func:`bank_propagate`) and its Ptt (nh, 3, 3) exactly symmetric:
-    :func:`bank_flush` would then leave Ptt and Ptp as they are, bit for bit (a second tracker
-    at the same epoch: about half of the bank's samples)."""
-    for h in range(Phi_aa.shape[0]):
-        for r in range(3):
-            for c in range(3):
-                if (Phi_aa[h, r, c] != (1.0 if r == c else 0.0) or Q_aa[h, r, c] != 0.0
-                        or Ptt[h, r, c] != Ptt[h, c, r]):
-                    return False
-            for c in range(Phi_ap.shape[2]):
-                if Phi_ap[h, r, c] != 0.0:
-                    return False
-    return True
 
 
 @kernel

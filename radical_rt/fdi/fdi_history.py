@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radical_rt.fdi.fdi_bank import append_rows
+from radical_rt.fdi.fdi_bank_propagate import append_rows
 
 
 class SampleBuffer:
@@ -47,7 +47,7 @@ class SampleBuffer:
 
     def reserve(self, m: int, n: int) -> None:
         """Room for m more samples of n gyros after ``end`` (the compiled release appends them
-        itself with :func:`radical_rt.fdi.fdi_bank.append_rows`, then advances ``end``)."""
+        itself with :func:`radical_rt.fdi.fdi_bank_propagate.append_rows`, then advances ``end``)."""
         if self._f.shape[1] != self._COLS + n or self.end + m > len(self._i):
             self._make_room(m, n)
 

@@ -35,11 +35,10 @@ from radical_rt.fdi.fdi_bank import (
     BK_SIG,
     BK_SLOTS,
     BK_ST,
-    bank_flush,
-    bank_propagate,
     bank_run,
     decide,
 )
+from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import refresh_axes

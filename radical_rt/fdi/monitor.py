@@ -26,17 +26,20 @@ therefore works in three stages (design and thresholds: docs/fdi.md):
 The engine calls :class:`FaultMonitor` through four hooks (``on_gyro``, ``on_tracker``,
 ``on_parity_sum``, ``on_window``); all decisions are made in ``on_window``, a deterministic point
 after the correction is folded in, so batch and streaming runs take identical decisions.
+This module owns the hooks, the detection and the bookkeeping (history, snapshots, restarts);
+the alarm/isolation/reconfiguration steps are in :mod:`radical_rt.fdi.monitor_isolation`, the
+checkpoint state and the detail in :mod:`radical_rt.fdi.monitor_state`.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
-from radical_rt.contract.conventions import DEG_PER_HR, SIRU_PERIOD_S
+from radical_rt.contract.conventions import SIRU_PERIOD_S
 from radical_rt.contract.flags import GYRO_FAILED, Flag
 from radical_rt.fdi.fdi_detect import (
     CUSUM_SHIFT,
@@ -51,12 +54,12 @@ from radical_rt.fdi.fdi_detect import (
 )
 from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
-from radical_rt.kernels import ud
+from radical_rt.fdi.monitor_isolation import IsolationSteps
+from radical_rt.fdi.monitor_state import MonitorState
 
 # Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
 SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
 BUFFER_S = 600.0  # gyro and tracker history kept for the bank
-ONSET_MARGIN_S = 2.0  # the bank starts from a snapshot at least this long before the onset estimate
 BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
 # outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
 CHECK_MAX_S = 2.0
@@ -67,23 +70,11 @@ WAKE_EARLY_S = 1e-6  # the compiled loop wakes the hook this much before a time-
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
 
 # ----------------------------------------------------------------------------- the monitor
-class Reconfiguration(NamedTuple):
-    """The engine state an isolation hands to ``Engine.apply_isolation``: the UD factors U (ns, ns)
-    and d (ns,), the parameters xp (ns − 3,) [internal units], q_body_from_inertial (4,) and the
-    body rate omega (3,) [rad/s] of the winning hypothesis, and dt_noise [s], the time since the
-    snapshot over which the parameter process noise is added."""
-
-    U: np.ndarray
-    d: np.ndarray
-    xp: np.ndarray
-    q: np.ndarray
-    omega: np.ndarray
-    dt_noise: float
-
-
-class FaultMonitor:
+class FaultMonitor(IsolationSteps, MonitorState):
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
-    (``fdi_*``, :mod:`radical_rt.contract.params`); defaults apply when a name is missing."""
+    (``fdi_*``, :mod:`radical_rt.contract.params`); defaults apply when a name is missing. The
+    alarm/isolation steps come from :class:`radical_rt.fdi.monitor_isolation.IsolationSteps`, the
+    checkpoint state and the detail from :class:`radical_rt.fdi.monitor_state.MonitorState`."""
 
     #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/radical_rt/fdi/test_fdi_bank.py and
     #: perf/bench_fdi_bank.py put the Python oracle of tests/oracles here)
@@ -337,174 +328,7 @@ class FaultMonitor:
             omega=eng.omega.copy(), xp=eng.xp.copy(), U=eng.U.copy(), d=eng.d.copy(),
             N=eng.N.copy()))
 
-    def _raise_alarm(self, eng, test: str, t_onset: float, nu: float, rho: float) -> None:
-        self._check_gen(eng)
-        first = self.state != "alarm"
-        eng.flags |= Flag.PARITY_ALARM
-        self.state = "alarm"
-        # The bank starts from the latest snapshot before the onset estimate minus a margin. A CUSUM
-        # excursion starts late for a slowly growing fault (only once its mean exceeds k), so
-        # there the margin is the excursion's own length.
-        margin = ONSET_MARGIN_S
-        if test == "cusum":
-            margin = max(margin, eng.t - t_onset)
-        snap = None
-        for s in self.snaps:
-            if s.t <= t_onset - margin:
-                snap = s
-        if snap is None and self.snaps:
-            snap = self.snaps[0]
-        rec = {"t_alarm": float(eng.t), "test": test, "t_onset_est": float(t_onset),
-               "nu": float(nu), "rho": float(rho), "bank": "running" if snap else "no snapshot",
-               "t_snapshot": float(snap.t) if snap else None}
-        if first:
-            self.counts["alarms"] += 1
-            self.alarms.append(rec)
-            self.alarm = rec
-        else:  # a new trigger during an alarm whose bank ended: a fresh bank, same alarm
-            self.alarm.update({k: v for k, v in rec.items() if k != "t_alarm"})
-        if snap is not None:
-            self.bank = self.bank_type(eng, snap, float(eng.t))
-            self._t_decided = -math.inf
-            self.counts["banks"] += 1
-
-    def _fault_size(self, eng, gyro: int, t_onset: float) -> dict[str, float]:
-        """Size of the fault on ``gyro`` from the parity innovations of the sums that started after
-        the onset estimate: z ≈ p_i f T (T the sum length)."""
-        zs = np.array([z for t0, z in self.parity_log if t0 >= t_onset - 1e-9])
-        t_sum = eng.si.parity_window * SIRU_PERIOD_S
-        p = float(self.bank.snap.N[gyro, 0])
-        if zs.size == 0 or p == 0.0:
-            return {}
-        return {"rate_mean_deg_hr": float(zs.mean() / (p * t_sum) / DEG_PER_HR),
-                "rate_rms_deg_hr": float(np.sqrt(np.mean(zs**2)) / (abs(p) * t_sum) / DEG_PER_HR),
-                "sums": int(zs.size)}
-
-    def _isolate(self, eng, gyro: int, margin: float) -> None:
-        bank = self.bank
-        h = bank.gyros.index(gyro)
-        rec = {"gyro": int(gyro), "t_isolated": float(eng.t), "t_alarm": self.alarm["t_alarm"],
-               "t_onset_est": self.alarm["t_onset_est"], "test": self.alarm["test"],
-               "llr_margin": margin, "t_snapshot": bank.snap.t, "trackers": bank.k,
-               "auto_exclude": bool(self._p(eng, "auto_exclude", True)),
-               "fault_size": self._fault_size(eng, gyro, self.alarm["t_onset_est"]),
-               "bank": bank.summary()}
-        self.isolations.append(rec)
-        self.counts["isolations"] += 1
-        self.alarm["bank"] = f"isolated gyro {gyro}"
-        eng.flags |= GYRO_FAILED[gyro]
-        self.failed_by_fdi.add(int(gyro))
-        self.bank = None
-        if rec["auto_exclude"] and eng.n_gyro - int(eng.excluded.sum()) - 1 >= 3:
-            self._reconfigure(eng, bank, h, gyro)
-            eng.flags &= ~int(Flag.PARITY_ALARM)
-            self.state = "three-gyro"
-        else:  # flagged only: PARITY_ALARM stays, no new bank until the operator acts
-            self.flagged_only.add(int(gyro))
-            self.state = "flagged"
-
-    def _reconfigure(self, eng, bank: HypothesisBank, h: int, gyro: int) -> None:
-        """Exclude ``gyro``; calibration and its covariance back to the pre-fault snapshot (plus the
-        parameter process noise since), attitude and cross-covariance from the winning filter.
-        The FDI computes the state; the engine applies it (``Engine.apply_isolation``)."""
-        ns = eng.ns
-        P = np.empty((ns, ns))
-        q, omega, Ptt, Ptp = bank.final_state(eng, self.gbuf, h)
-        P[:3, :3] = Ptt
-        P[:3, 3:] = Ptp
-        P[3:, :3] = Ptp.T
-        P[3:, 3:] = bank.Ppp
-        U, d = np.eye(ns), np.ones(ns)
-        if ud.factor_ud(P, U, d) == 0 and np.all(d > 0):
-            state = Reconfiguration(U=U, d=d, xp=bank.xp, q=q, omega=omega,
-                                    dt_noise=max(eng.t - bank.snap.t, 0.0))
-        else:  # keep the engine's own covariance, restart the attitude from the trackers
-            state = None
-        eng.apply_isolation(gyro, state)
-        self.snaps.clear()  # pre-reconfiguration snapshots describe four gyros
-
-    def compile_bank(self, eng) -> bool:
-        """Run a throw-away bank from the latest snapshot over the buffered samples, so that its
-        kernels are compiled (or loaded from the cache) before the first alarm (the node's
-        start-up warm-up). Changes nothing; False without a snapshot or tracker samples."""
-        if not self.snaps or not self.trk:
-            return False
-        bank = self.bank_type(eng, self.snaps[0], float(eng.t))
-        bank.advance(eng, self.gbuf, self.trk, float(eng.t))
-        bank.final_state(eng, self.gbuf, 0)
-        bank.decision(self.llr_threshold(eng))
-        return bank.k > 0
-
-    # ------------------------------------------------------------------ checkpoints
-    _SCALARS = ("state", "last_nu", "last_rho", "_next_check", "_sum_seen", "_t_decided",
-                "trk_seq")
-
-    def get_state(self) -> dict[str, Any]:
-        """Everything the monitor carries between two hooks (numpy arrays and plain values;
-        radical_rt.io.ckpt_fdi encodes and validates it): a resume continues an alarm in progress
-        with the same history, snapshots and bank."""
-        b = self.bank
-        return {**{k: getattr(self, k) for k in self._SCALARS},
-                "gen": None if self.gen is None else list(self.gen), "alarm": self.alarm,
-                "alarm_is_last": bool(self.alarms) and self.alarm is self.alarms[-1],
-                "alarms": self.alarms, "isolations": self.isolations,
-                "parity_log": np.array(self.parity_log, np.float64).reshape(-1, 2),
-                "failed": sorted(self.failed_by_fdi), "flagged_only": sorted(self.flagged_only),
-                "counts": dict(self.counts), "gbuf": self.gbuf.get_state(),
-                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk],
-                "snaps": [vars(s) for s in self.snaps],
-                "det": None if self.det is None else self.det.get_state(),
-                "bank": None if b is None else {"snap": vars(b.snap), "t_alarm": b.t_alarm,
-                                                **b.get_state()}}
-
-    def set_state(self, eng, st: dict[str, Any]) -> None:
-        """Put a validated :meth:`get_state` back (after the engine's own state)."""
-        for k in self._SCALARS:
-            setattr(self, k, st[k])
-        self.gen = None if st["gen"] is None else tuple(st["gen"])
-        self.alarms, self.isolations = list(st["alarms"]), list(st["isolations"])
-        self.alarm = self.alarms[-1] if st["alarm_is_last"] else st["alarm"]
-        self.parity_log = deque((float(t0), float(z)) for t0, z in st["parity_log"])
-        self.failed_by_fdi, self.flagged_only = set(st["failed"]), set(st["flagged_only"])
-        self.counts.update(st["counts"])
-        self.gbuf.set_state(st["gbuf"])
-        self.trk = deque(st["trk"])
-        self.snaps = deque(Snapshot(**s) for s in st["snaps"])
-        self._th_key, self.det = None, None
-        if st["det"] is not None:
-            self.detector(eng).set_state(st["det"])
-        self.bank = None
-        if st["bank"] is not None:
-            bs = dict(st["bank"])
-            self.bank = self.bank_type(eng, Snapshot(**bs.pop("snap")), bs.pop("t_alarm"))
-            self.bank.set_state(bs)
-
-    # ------------------------------------------------------------------ outputs
-    def detail(self) -> dict[str, Any]:
-        """Plain-type state for the ``fault`` message detail and diagnostics."""
-        d: dict[str, Any] = {"state": self.state, "failed": sorted(self.failed_by_fdi)}
-        if self.det is not None:
-            d.update({"nu_last": _f(self.last_nu), "rho_last": _f(self.last_rho),
-                      "cusum": [self.det.s_pos, self.det.s_neg], "guarded": bool(self.det.guarded),
-                      "thresholds": {"inst": self.det.th.t_inst, "persist": self.det.th.t_persist,
-                                     "cusum_h": self.det.th.cusum_h}})
-        if self.alarm is not None:
-            d["alarm"] = dict(self.alarm)
-        if self.bank is not None:
-            d["bank"] = self.bank.summary()
-        if self.isolations:
-            last = self.isolations[-1]
-            d["last_isolation"] = {k: last[k] for k in (
-                "gyro", "t_onset_est", "t_alarm", "t_isolated", "test", "llr_margin",
-                "fault_size")}
-        d["counts"] = dict(self.counts)
-        return d
-
-
-def _f(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
 
 __all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",
-           "ParityDetector", "Reconfiguration", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
+           "ParityDetector", "SampleBuffer", "Snapshot", "Thresholds", "chi2_1_isf", "chi2_isf", "cusum_arl0",
            "cusum_threshold", "thresholds"]

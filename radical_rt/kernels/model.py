@@ -1,4 +1,4 @@
-"""The filter's gyro, parity and star-tracker models and their Jacobians (Numba kernels).
+"""The filter's gyro and parity models and their Jacobians (Numba kernels).
 
 Parameter vector ``xp`` in state order: b (rad/s), λ', μ', du', dv' (the engine's *internal*
 linear scaled-axis form, see the section below and docs/engine.md §2), φ2 (rad, body axes), then
@@ -14,6 +14,10 @@ with its estimates, ``c_i = (y_i − b̂_i dt)/(1 + μ̂'_i sgn)`` and ``θ̂ = 
 Error propagation over one sample: ``δθ_k = R(θ̂)ᵀ δθ_{k−1} + F_k δp + w_k`` with
 ``F_k = ∂θ̂/∂p̂`` (3 × 5n, checked by finite differences). Parity: ``z = Nᵀ c`` with N (n, n−3)
 the orthonormal null basis of Â; its measurement row is ``H = −∂z/∂p̂`` (δ = true − estimate).
+
+The star-tracker model is in :mod:`radical_rt.kernels.tracker_model`, the exact conversions
+between the internal and the contract's parameters in :mod:`radical_rt.kernels.parametrization`,
+the attitude step (:func:`radical_rt.kernels.rotation.apply_body_rotation`) with the rotation kernels.
 """
 
 from __future__ import annotations
@@ -23,15 +27,7 @@ import math
 import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
-from radical_rt.kernels.rotation import (
-    dcm_to_quat,
-    quat_mul_into,
-    quat_normalize_inplace,
-    quat_to_dcm,
-    quat_to_dcm_into,
-    rotvec_to_dcm,
-    rotvec_to_quat_into,
-)
+from radical_rt.kernels.rotation import apply_body_rotation
 
 
 @kernel
@@ -82,135 +78,6 @@ def masked_pinv(Wt, active, Minv_out, Gp_out):
     return na
 
 
-@kernel
-def apply_body_rotation(q, theta, work4, dq):
-    """q_body_from_inertial ← R(theta)ᵀ ∘ q: the body turned by theta (3,) [rad, body axes]."""
-    rotvec_to_quat_into(theta, dq)
-    apply_body_quat(q, dq, work4)
-
-
-@kernel
-def apply_body_quat(q, dq, work4):
-    """:func:`apply_body_rotation` with the quaternion dq (4,) of R(theta) already computed (dq
-    is conjugated in place); work4 (4,) work."""
-    dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
-    quat_mul_into(dq, q, work4)
-    for k in range(4):
-        q[k] = work4[k]
-    quat_normalize_inplace(q)
-
-
-@kernel
-def left_jacobian(phi):
-    """SO(3) left Jacobian J_l(phi) (3, 3): exp([(phi+δ)×]) ≈ exp([J_l δ ×]) exp([phi×])."""
-    a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    K = np.zeros((3, 3))
-    K[0, 1], K[0, 2], K[1, 0] = -phi[2], phi[1], phi[2]
-    K[1, 2], K[2, 0], K[2, 1] = -phi[0], -phi[1], phi[0]
-    c1, c2 = (0.5, 0.0) if a < 1e-8 else ((1.0 - math.cos(a)) / (a * a), (a - math.sin(a)) / (a ** 3))
-    J = np.empty((3, 3))
-    for r in range(3):
-        for c in range(3):
-            kk = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
-            J[r, c] = (1.0 if r == c else 0.0) + c1 * K[r, c] + c2 * kk
-    return J
-
-
-@kernel
-def tracker_residual(q_meas, q_body_est, R_st_from_body_nom, phi, use_phi, r_out, H_att, H_phi):
-    """Residual r (3,) [rad, tracker axes] and Jacobians of a star-tracker measurement.
-
-    q_meas (4,) = measured q_st_from_inertial; q_body_est (4,) = q_body_from_inertial at the epoch;
-    R_st_from_body_nom (3, 3); phi (3,) the tracker's misalignment estimate (body axes), used when
-    use_phi. Model: R_st_from_inertial = R_nom R(phi)ᵀ R_body_from_inertial; residual
-    r = −rotvec(R_meas R̂ᵀ) = R_nom R(φ̂)ᵀ (δθ + J_l(φ̂) δφ) to first order, so
-    H_att = R_nom R(φ̂)ᵀ and H_phi = H_att J_l(φ̂) (zero if not use_phi).
-    """
-    tracker_geometry(R_st_from_body_nom, phi, use_phi, H_att, H_phi)
-    tracker_error(q_meas, q_body_est, H_att, r_out)
-
-
-@kernel
-def tracker_geometry(R_st_from_body_nom, phi, use_phi, H_att, H_phi):
-    """The rows of :func:`tracker_residual`, which do not depend on the attitude: H_att (3, 3) =
-    R_nom R(φ̂)ᵀ and H_phi (3, 3) = H_att J_l(φ̂), zero if not use_phi (φ̂ (3,) [rad, body])."""
-    if use_phi:
-        q_phi = np.empty(4)
-        Rphi = np.empty((3, 3))
-        rotvec_to_quat_into(phi, q_phi)
-        quat_to_dcm_into(q_phi, Rphi)
-        for r in range(3):  # H_att = R_nom R(φ̂)ᵀ
-            for c in range(3):
-                H_att[r, c] = (R_st_from_body_nom[r, 0] * Rphi[c, 0] + R_st_from_body_nom[r, 1]
-                               * Rphi[c, 1] + R_st_from_body_nom[r, 2] * Rphi[c, 2])
-        J = left_jacobian(phi)
-        for r in range(3):
-            for c in range(3):
-                H_phi[r, c] = H_att[r, 0] * J[0, c] + H_att[r, 1] * J[1, c] + H_att[r, 2] * J[2, c]
-    else:
-        H_att[:, :] = R_st_from_body_nom
-        H_phi[:, :] = 0.0
-
-
-@kernel
-def tracker_error(q_meas, q_body_est, H_att, r_out):
-    """The residual of :func:`tracker_residual` given its H_att (3, 3) (:func:`tracker_geometry`):
-    r_out (3,) = −rotvec(R_meas (H_att R̂_body)ᵀ) [rad, tracker axes], exact below π."""
-    w = np.empty((4, 3, 3))  # R_meas, R̂_body, H_att R̂_body, E
-    Rm, Rb, G, E = w[0], w[1], w[2], w[3]
-    quat_to_dcm_into(q_meas, Rm)
-    quat_to_dcm_into(q_body_est, Rb)
-    for r in range(3):  # E = R_meas (H_att R̂_body)ᵀ
-        for c in range(3):
-            G[r, c] = H_att[r, 0] * Rb[0, c] + H_att[r, 1] * Rb[1, c] + H_att[r, 2] * Rb[2, c]
-    for r in range(3):
-        for c in range(3):
-            E[r, c] = Rm[r, 0] * G[c, 0] + Rm[r, 1] * G[c, 1] + Rm[r, 2] * G[c, 2]
-    ax0 = 0.5 * (E[2, 1] - E[1, 2])
-    ax1 = 0.5 * (E[0, 2] - E[2, 0])
-    ax2 = 0.5 * (E[1, 0] - E[0, 1])
-    sn = math.sqrt(ax0 * ax0 + ax1 * ax1 + ax2 * ax2)
-    ang = math.atan2(sn, 0.5 * (E[0, 0] + E[1, 1] + E[2, 2] - 1.0))
-    k = 1.0 if sn < 1e-12 else ang / sn
-    r_out[0], r_out[1], r_out[2] = -k * ax0, -k * ax1, -k * ax2
-
-
-@kernel
-def tracker_rows(q_meas, q_body, omega, dt_extrap, R_st_from_body_nom, phi, use_phi, phi_col,
-                 lat_col, r_out, H_att, H_phi, H):
-    """Residual and measurement rows of one star-tracker sample (the engine's tracker update).
-
-    The attitude q_body (4,) q_body_from_inertial at the last gyro sample is extrapolated by
-    dt_extrap [s] with the body rate omega (3,) [rad/s, body] to the measurement's epoch, then
-    :func:`tracker_residual` gives r_out (3,) [rad, tracker axes], H_att and H_phi (3, 3).
-    H (3, ns) ← 0 with H_att in columns 0..2, H_phi in phi_col..phi_col+2 (if use_phi) and
-    ∂h/∂τ = −H_att ω̂ in column lat_col (a latency error δτ is an attitude error −ω̂ δτ).
-    Returns |ω̂|² [rad²/s²].
-    """
-    q_epoch = q_body.copy()
-    if dt_extrap != 0.0:
-        w = np.empty(11)
-        th = w[:3]
-        for r in range(3):
-            th[r] = omega[r] * dt_extrap
-        apply_body_rotation(q_epoch, th, w[3:7], w[7:11])
-    tracker_residual(q_meas, q_epoch, R_st_from_body_nom, phi, use_phi, r_out, H_att, H_phi)
-    H[:, :] = 0.0
-    for r in range(3):
-        for c in range(3):
-            H[r, c] = H_att[r, c]
-            H[r, phi_col + c] = H_phi[r, c]
-        H[r, lat_col] = -(H_att[r, 0] * omega[0] + H_att[r, 1] * omega[1] + H_att[r, 2] * omega[2])
-    return omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]
-
-
-@kernel
-def quat_from_tracker(q_meas, R_st_from_body_nom, phi, use_phi):
-    """q_body_from_inertial (4,) implied by a tracker quaternion (inverse of the mounting model)."""
-    Rphi = rotvec_to_dcm(phi) if use_phi else np.eye(3)
-    return dcm_to_quat((R_st_from_body_nom @ Rphi.T).T @ quat_to_dcm(q_meas))
-
-
 # ---------------------------------------------------------------------------------------------
 # Internal (linear) parametrization used by the engine.
 #
@@ -224,7 +91,7 @@ def quat_from_tracker(q_meas, R_st_from_body_nom, phi, use_phi):
 #     y_i = (1 + μ'_i sgn g_i)·a_iᵀθ + b_i dt      (exactly the contract's model)
 # so the increment model is linear in (λ', du', dv') for a given θ and every unobservable set is
 # a straight line. Conversions to and from the contract's parameters are exact
-# (:func:`contract_from_internal`, :func:`internal_from_contract`).
+# (:mod:`radical_rt.kernels.parametrization`).
 # ---------------------------------------------------------------------------------------------
 
 
@@ -403,85 +270,6 @@ def parity_rows_lin(c, g, sgn, s, dt, theta, N, W, U_ax, V_ax, z_acc, H_acc):
             H_acc[r, 2 * n + i] += p * sgn[i] * g[i] / s[i]
             H_acc[r, 3 * n + i] -= p * vt
             H_acc[r, 4 * n + i] -= p * ut
-
-
-def contract_from_internal(xp, n):
-    """Contract parameters (CONTRACT §1.5, SI) and the Jacobian ∂contract/∂internal.
-
-    xp (5n+3,) internal (b, λ', μ', du', dv', φ2). Per gyro, with a = (1+λ')w − du'v − dv'u:
-    1 + λ = |a| = √((1+λ')² + du'² + dv'²), du = du'/(1+λ'), dv = dv'/(1+λ'), μ = μ'(1+λ).
-    Returns (xp_contract (5n+3,), J (5n+3, 5n+3)).
-    """
-    xp = np.ascontiguousarray(xp, dtype=float)
-    out, J = xp.copy(), np.eye(xp.size)
-    _contract_from_internal(xp, int(n), out, J)
-    return out, J
-
-
-@kernel
-def contract_sigma_ud(xp, n, U, d, J, sig):
-    """1σ (npar,) of the contract parameters into sig, straight from the UD factors: σ_i² =
-    Σ_l d_l (J U_pp)²_il over the parameter block (U (ns, ns) unit upper, d (ns,), parameters
-    from state 3), with J = ∂contract/∂internal of :func:`contract_from_internal` (written into
-    the work matrix J (npar, npar)); J has at most four entries per row, so the product is taken
-    over a row's nonzero entries only (P and J P Jᵀ are never formed)."""
-    npar = xp.shape[0]
-    for r in range(npar):
-        for c in range(npar):
-            J[r, c] = 1.0 if r == c else 0.0
-    _contract_from_internal(xp, n, np.empty(npar), J)
-    cols = np.empty(npar, np.int64)
-    vals = np.empty(npar)
-    for i in range(npar):
-        m = 0
-        for k in range(npar):
-            if J[i, k] != 0.0:
-                cols[m], vals[m] = k, J[i, k]
-                m += 1
-        if m == 0:
-            sig[i] = 0.0
-            continue
-        acc = 0.0
-        lo = cols[0]  # U is upper triangular: row k of U_pp is zero left of column k
-        for col in range(lo, npar):
-            f = 0.0
-            for a in range(m):
-                f += vals[a] * U[3 + cols[a], 3 + col]
-            acc += d[3 + col] * f * f
-        sig[i] = np.sqrt(max(acc, 0.0))
-
-
-@kernel
-def _contract_from_internal(xp, n, out, J):
-    """The per-gyro part of :func:`contract_from_internal` into out (copy of xp) and J (= I)."""
-    for i in range(n):
-        il, im, iu, iv = n + i, 2 * n + i, 3 * n + i, 4 * n + i
-        sl, mu, du, dv = 1.0 + xp[il], xp[im], xp[iu], xp[iv]
-        na = math.sqrt(sl * sl + du * du + dv * dv)
-        out[il] = na - 1.0
-        out[im] = mu * na
-        out[iu] = du / sl
-        out[iv] = dv / sl
-        J[il, il], J[il, iu], J[il, iv] = sl / na, du / na, dv / na
-        J[im, im] = na
-        J[im, il], J[im, iu], J[im, iv] = mu * sl / na, mu * du / na, mu * dv / na
-        J[iu, iu], J[iu, il] = 1.0 / sl, -du / (sl * sl)
-        J[iv, iv], J[iv, il] = 1.0 / sl, -dv / (sl * sl)
-
-
-def internal_from_contract(xp_c, n):
-    """Inverse of :func:`contract_from_internal` (exact): contract (b, λ, μ, du, dv, φ2) → internal."""
-    xp_c = np.asarray(xp_c, dtype=float)
-    out = xp_c.copy()
-    for i in range(n):
-        il, im, iu, iv = n + i, 2 * n + i, 3 * n + i, 4 * n + i
-        lam, mu, du, dv = xp_c[il], xp_c[im], xp_c[iu], xp_c[iv]
-        sl = (1.0 + lam) / math.sqrt(1.0 + du * du + dv * dv)
-        out[il] = sl - 1.0
-        out[im] = mu / (1.0 + lam)
-        out[iu] = du * sl
-        out[iv] = dv * sl
-    return out
 
 
 @kernel

@@ -24,14 +24,13 @@ from typing import NamedTuple
 import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
-from radical_rt.kernels.model import (
+from radical_rt.kernels.model import correct_increment_lin, jacobian_gyro, masked_pinv
+from radical_rt.kernels.rotation import (
     apply_body_quat,
     apply_body_rotation,
-    correct_increment_lin,
-    jacobian_gyro,
-    masked_pinv,
+    quat_to_dcm_into,
+    rotvec_to_quat_into,
 )
-from radical_rt.kernels.rotation import quat_to_dcm_into, rotvec_to_quat_into
 
 #: propagate_window return flags (bit set in the second return value)
 PROP_MASKED = 1  # some samples used fewer than all gyros

@@ -3,7 +3,9 @@
 All functions are Numba-compiled and match :mod:`scipy.spatial.transform` exactly in meaning:
 ``quat_to_dcm(q) == Rotation.from_quat(q).as_matrix()``, ``quat_mul(q, p) == (R(q) * R(p)).as_quat()``
 (up to the sign of the quaternion), ``rotvec_to_quat(phi) == Rotation.from_rotvec(phi).as_quat()``.
-Functions with an ``out`` argument write into it and allocate nothing.
+Functions with an ``out`` argument write into it and allocate nothing. Also the body-frame
+attitude step of the filter (:func:`apply_body_rotation`, :func:`apply_body_quat`: the body turned
+by a body-axes rotation vector) and the SO(3) left Jacobian (:func:`left_jacobian`).
 """
 
 from __future__ import annotations
@@ -191,3 +193,37 @@ def skew(v):
     m[2, 0] = -v[1]
     m[2, 1] = v[0]
     return m
+
+
+@kernel
+def apply_body_rotation(q, theta, work4, dq):
+    """q_body_from_inertial ← R(theta)ᵀ ∘ q: the body turned by theta (3,) [rad, body axes]."""
+    rotvec_to_quat_into(theta, dq)
+    apply_body_quat(q, dq, work4)
+
+
+@kernel
+def apply_body_quat(q, dq, work4):
+    """:func:`apply_body_rotation` with the quaternion dq (4,) of R(theta) already computed (dq
+    is conjugated in place); work4 (4,) work."""
+    dq[0], dq[1], dq[2] = -dq[0], -dq[1], -dq[2]
+    quat_mul_into(dq, q, work4)
+    for k in range(4):
+        q[k] = work4[k]
+    quat_normalize_inplace(q)
+
+
+@kernel
+def left_jacobian(phi):
+    """SO(3) left Jacobian J_l(phi) (3, 3): exp([(phi+δ)×]) ≈ exp([J_l δ ×]) exp([phi×])."""
+    a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    K = np.zeros((3, 3))
+    K[0, 1], K[0, 2], K[1, 0] = -phi[2], phi[1], phi[2]
+    K[1, 2], K[2, 0], K[2, 1] = -phi[0], -phi[1], phi[0]
+    c1, c2 = (0.5, 0.0) if a < 1e-8 else ((1.0 - math.cos(a)) / (a * a), (a - math.sin(a)) / (a ** 3))
+    J = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            kk = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
+            J[r, c] = (1.0 if r == c else 0.0) + c1 * K[r, c] + c2 * kk
+    return J

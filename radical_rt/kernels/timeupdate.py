@@ -6,9 +6,9 @@ accumulated transition Φ = [[Φ_aa, Φ_ap], [0, I]], attitude noise Q_aa, and s
 
 1. regressor reliability κ of Θ̂ (errors-in-variables control, docs/engine.md): the λ, μ, du, dv
    columns of Φ_ap are scaled by κ;
-2. structured UD time update P ← ΦPΦᵀ + diag(Q_aa, 0) (:func:`radical_rt.kernels.ud.structured_time_update`);
+2. structured UD time update P ← ΦPΦᵀ + diag(Q_aa, 0) (:func:`radical_rt.kernels.ud_time.structured_time_update`);
 3. parameter random-walk noise: diag(q) Δt is accumulated, and P_pp += the accumulated noise
-   (:func:`radical_rt.kernels.ud.add_diagonal_noise`, 24 rank-one updates, the most expensive step of a
+   (:func:`radical_rt.kernels.ud_time.add_diagonal_noise`, 24 rank-one updates, the most expensive step of a
    close) once NOISE_PERIOD_S of windows have passed;
 4. the accumulators are reset (Φ_aa = I, Φ_ap = 0, Q_aa = 0, Θ̂ = 0, count and Δt = 0).
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from radical_rt._jit import kernel
-from radical_rt.kernels.ud import add_diagonal_noise, structured_time_update
+from radical_rt.kernels.ud_time import add_diagonal_noise, structured_time_update
 
 NOISE_PERIOD_S = 1.0  # the accumulated parameter process noise is added once this much has passed
 ACC_NOISE_T = 3  # acc_f[ACC_NOISE_T]: time since the noise was last added [s]

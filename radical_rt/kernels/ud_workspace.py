@@ -1,4 +1,5 @@
-"""Preallocated work arrays for the UD kernels of :mod:`radical_rt.kernels.ud` (plain Python, no Numba).
+"""Preallocated work arrays for the UD kernels of :mod:`radical_rt.kernels.ud` and
+:mod:`radical_rt.kernels.ud_time` (plain Python, no Numba).
 
 One :class:`UDWorkspace` per filter instance; kernels take its arrays as ``*_work`` arguments so
 no kernel allocates per call. Also importable as ``radical_rt.kernels.ud.UDWorkspace``.

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from radical_rt._jit import kernel
-from radical_rt.kernels.ud import agee_turner, bierman_update, cholesky_lower, ut_times
+from radical_rt.kernels.ud import bierman_update, cholesky_lower, ut_times
+from radical_rt.kernels.ud_time import agee_turner
 
 UPDATE_ACCEPTED = 0
 UPDATE_EDITED = 1

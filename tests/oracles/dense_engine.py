@@ -9,7 +9,7 @@ every operation are the engine's own. The
 covariance P (ns, ns) is the single source of truth:
 
 ============================  =================================  ==================================
-engine operation              UD engine (radical_rt.kernels.ud/updates)  here
+engine operation              UD engine (kernels.ud, ud_time, updates)  here
 ============================  =================================  ==================================
 window time update            structured_time_update (MWGS-free  P ← ΦPΦᵀ + Q, Φ = [[Φ_aa, Φ_ap],
                               attitude-first partition)          [0, I]] (exploits the same blocks)
@@ -53,7 +53,7 @@ from radical_rt._jit import ERR_NONFINITE, ERR_NOT_POSITIVE, ERR_SHAPE, OK, kern
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.filter import Engine
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import contract_from_internal
+from radical_rt.kernels.parametrization import contract_from_internal
 from radical_rt.kernels.timeupdate import ACC_NOISE_T, NOISE_PERIOD_S
 from tests.oracles.reference_engine import ReferenceEngine
 

@@ -24,9 +24,10 @@ import numpy as np
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import apply_body_rotation, refresh_axes, tracker_residual
+from radical_rt.kernels.model import refresh_axes
 from radical_rt.kernels.propagate import propagate_window
-from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.kernels.rotation import apply_body_rotation, quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.kernels.tracker_model import tracker_residual
 
 
 def take(buf, t_after: float, t_upto: float):

@@ -3,14 +3,9 @@
 :class:`ReferenceEngine` is :class:`radical_rt.engine.filter.Engine` with :meth:`release` replaced
 by an event loop in Python that calls the small kernels one by one (propagation, window close,
 parity sums, tracker updates, fold), in the order docs/engine.md §3 specifies. The product runs
-<<<<<<< HEAD
-the same steps compiled in one call (:mod:`radical_rt.engine.loop`, :mod:`radical_rt.engine.
-steps`); tests/radical_rt/engine/test_fastpath.py requires the two to give the same outputs bit for bit, so each
-=======
-the same steps compiled in one call (:mod:`radical_rt.engine.fastpath`, :mod:`radical_rt.engine.
-steps`); tests/radical_rt/engine/test_fastpath.py requires the two to give the same outputs bit for bit, so each
->>>>>>> test-folders
-is a check on the other. The dense-covariance oracle (:mod:`tests.oracles.dense_engine`) runs
+the same steps compiled in one call (:mod:`radical_rt.engine.loop`,
+:mod:`radical_rt.engine.steps`); tests/radical_rt/engine/test_fastpath.py requires the two to give
+the same outputs bit for bit, so each is a check on the other. The dense-covariance oracle (:mod:`tests.oracles.dense_engine`) runs
 this loop with its own covariance primitives. Shared with the product on purpose: the kernels of
 :mod:`radical_rt.kernels`, the commands and starts, and the window hook (``Engine.on_window``).
 """
@@ -26,9 +21,10 @@ from radical_rt.engine.engine_state import param_slice
 from radical_rt.engine.filter import Engine
 from radical_rt.engine.shell import ST_EDITED_BIT, ST_KIND
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import parity_from_stats, quat_from_tracker, tracker_rows
+from radical_rt.kernels.model import parity_from_stats
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
+from radical_rt.kernels.tracker_model import quat_from_tracker, tracker_rows
 from radical_rt.kernels.updates import (
     gated_update,
     gated_update_consider,

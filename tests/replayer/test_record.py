@@ -23,7 +23,7 @@ from radical_rt.apps.cli import main as cli_main
 from radical_rt.contract.schemas import SCHEMAS
 from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader, TruncatedArchiveWarning
-from replayer.record import RecordError, bus_time_ns, parse_topics, record
+from replayer.recorder import RecordError, bus_time_ns, parse_topics, record
 
 ROOT = Path(__file__).resolve().parents[2]
 

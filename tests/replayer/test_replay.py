@@ -26,8 +26,10 @@ from radical_rt.io.archive import (
     ArchiveWriter,
     TruncatedArchiveWarning,
 )
-from replayer.record import record
-from replayer.replay import ReplayError, _summary_line, check_inputs, replay, wait_for_node
+from replayer.publish import check_inputs, replay
+from replayer.recorder import record
+from replayer.replay import _summary_line
+from replayer.sessions import ReplayError, wait_for_node
 from replayer.synth.api import synthesize
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -196,7 +198,7 @@ def test_fake_bus_paced_sequence_and_window(archives):
 def test_read_ahead_buffers_in_idle_time_only(archives):
     """_ReadAhead: same messages in the same order; fill() pulls ahead only while the deadline
     leaves more than the worst pull cost; pulls that load an MCAP chunk happen there."""
-    from replayer.replay import _ReadAhead
+    from replayer.publish import _ReadAhead
 
     with ArchiveReader(archives["a"]) as r:
         ra = _ReadAhead(r.iter_raw(INPUT_TOPICS))

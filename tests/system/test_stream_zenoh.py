@@ -20,7 +20,7 @@ from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
-from replayer.replay import replay
+from replayer.publish import replay
 from tests.support.node import make_archive, wait_for
 
 pytestmark = pytest.mark.zenoh

@@ -19,7 +19,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
 from radical_rt.stream.eos import make_eos
-from replayer.replay import replay
+from replayer.publish import replay
 from tests.support.node import MemNode, input_messages, make_archive, wait_for
 
 LINK = int(Flag.LINK_LOSS)

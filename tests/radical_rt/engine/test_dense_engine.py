@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from radical_rt.engine.filter import Engine
-from radical_rt.kernels import ud
+from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 from replayer.synth import synthesize
 from tests.oracles.dense_engine import (
@@ -46,7 +46,7 @@ def test_dense_time_update_matches_structured_ud():
     Phi_ap = rng.standard_normal((3, N - 3))
     B = rng.standard_normal((3, 3))
     Q = B @ B.T
-    assert ud.structured_time_update(U, d, 3, Phi_aa, Phi_ap, Q, ud.structured_work(N)) == 0
+    assert ud_time.structured_time_update(U, d, 3, Phi_aa, Phi_ap, Q, ud_time.structured_work(N)) == 0
     assert dense_time_update(P, 3, Phi_aa, Phi_ap, Q, np.zeros((3, N))) == 0
     Pud = np.empty((N, N))
     ud.ud_to_cov(U, d, Pud)

@@ -34,7 +34,7 @@ from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.contract.state import PARAM_GROUPS
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import internal_from_contract
+from radical_rt.kernels.parametrization import internal_from_contract
 from replayer.synth import synthesize
 from tests.support.scenarios import scenario
 

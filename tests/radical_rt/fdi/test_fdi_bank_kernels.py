@@ -1,6 +1,6 @@
-"""Unit tests of the bank kernels (radical_rt/fdi/fdi_bank.py) against dense numpy formulas of
-docs/fdi.md §3.2, on seeded random inputs; the same tests run again with NUMBA_DISABLE_JIT=1 in a
-subprocess (the kernels' source as plain Python)."""
+"""Unit tests of the bank kernels (radical_rt/fdi/fdi_bank.py, fdi_bank_propagate.py) against
+dense numpy formulas of docs/fdi.md §3.2, on seeded random inputs; the same tests run again with
+NUMBA_DISABLE_JIT=1 in a subprocess (the kernels' source as plain Python)."""
 
 from __future__ import annotations
 
@@ -12,18 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radical_rt.fdi.fdi_bank import (
-    bank_flush,
-    bank_propagate,
-    bank_tracker,
-    decision_due,
-    rows_after,
-)
+from radical_rt.fdi.fdi_bank import bank_tracker, decision_due
+from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, rows_after
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
-from radical_rt.kernels.model import tracker_residual
 from radical_rt.kernels.propagate import propagate_window
 from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
+from radical_rt.kernels.tracker_model import tracker_residual
 
 NH, NPAR, N = 5, 23, 4
 PHI_COL, LAT_COL = 20, 22
@@ -60,7 +55,7 @@ def _rot(rng):
 def _tracker_reference(q_meas, n_stars, R_nom, phi, dt_ex, st_sigma, ref, sig_t, gate, q, omega, Ptt,
                        Ptp, Ppp, ll, nis):
     """Dense numpy form of one tracker sample for every hypothesis (ST2: φ2 and τ columns)."""
-    from radical_rt.kernels.model import apply_body_rotation
+    from radical_rt.kernels.rotation import apply_body_rotation
     out = []
     for h in range(NH):
         qe = q[h].copy()
@@ -103,7 +98,7 @@ def test_tracker_kernel_matches_dense_schmidt_update():
     # R_st_from_inertial = R(noise) R_nom R(φ2)ᵀ R_body_from_inertial at the extrapolated epoch
     from scipy.spatial.transform import Rotation
 
-    from radical_rt.kernels.model import apply_body_rotation
+    from radical_rt.kernels.rotation import apply_body_rotation
     qe = q[0].copy()
     apply_body_rotation(qe, omega[0] * 0.013, np.empty(4), np.empty(4))
     Rm = (Rotation.from_rotvec(2e-5 * rng.standard_normal(3)).as_matrix() @ R_nom
@@ -257,12 +252,13 @@ def test_numba_cache_fingerprint_covers_the_bank_kernels(tmp_path, monkeypatch):
     """The bank kernels embed propagate/model/ud/updates kernels: their module is one of the
     kernel modules whose contents key every cached kernel of the package (radical_rt._jit)."""
     from radical_rt import _jit
-    from radical_rt.fdi import fdi_bank
-    src = Path(fdi_bank.__file__)
+    from radical_rt.fdi import fdi_bank, fdi_bank_propagate
     pkg = tmp_path / "pkg"
     pkg.mkdir()
-    (pkg / src.name).write_bytes(src.read_bytes())
     monkeypatch.setattr(_jit, "_PACKAGE", pkg)
-    before = _jit._fingerprint(pkg)
-    (pkg / src.name).write_bytes(src.read_bytes() + b"\n# edited\n")
-    assert _jit._fingerprint(pkg) != before
+    for mod in (fdi_bank, fdi_bank_propagate):
+        src = Path(mod.__file__)
+        (pkg / src.name).write_bytes(src.read_bytes())
+        before = _jit._fingerprint(pkg)
+        (pkg / src.name).write_bytes(src.read_bytes() + b"\n# edited\n")
+        assert _jit._fingerprint(pkg) != before

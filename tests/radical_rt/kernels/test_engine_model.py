@@ -8,14 +8,13 @@ from radical_rt.contract.conventions import ARCSEC, DEG_PER_HR, PPM
 from radical_rt.contract.geometry import Geometry
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import (
-    contract_from_internal,
     correct_increment_lin,
     increment_jacobian_lin,
-    internal_from_contract,
     parity_from_stats,
     parity_rows_lin,
     refresh_axes,
 )
+from radical_rt.kernels.parametrization import contract_from_internal, internal_from_contract
 from radical_rt.kernels.updates import gated_update_consider
 
 GEO = Geometry()

@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from radical_rt.contract.conventions import ARCSEC
 from radical_rt.contract.geometry import Geometry
-from radical_rt.kernels.model import masked_pinv, tracker_residual
+from radical_rt.kernels.model import masked_pinv
+from radical_rt.kernels.tracker_model import tracker_residual
 
 GEO = Geometry()
 N_G = GEO.n_gyro

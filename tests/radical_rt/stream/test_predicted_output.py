@@ -1,4 +1,4 @@
-"""The low-latency, sample-triggered telemetry (tlm/small by default; radical_rt.stream.processor.now()).
+"""The low-latency, sample-triggered telemetry (tlm/small by default; radical_rt.stream.outputs.StreamOutputs.now()).
 
 * ``predict_attitude`` propagates exactly as the filter's own propagation does (same samples,
   same calibration → the same quaternion);

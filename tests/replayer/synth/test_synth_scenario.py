@@ -135,7 +135,8 @@ def test_cli_exit_codes(tmp_path, capsys):
     assert 'name = "alternate"' in printed and "[[faults]]" not in printed
 
 
-FORBIDDEN = ("radical_rt.kernels.model", "radical_rt.engine.filter", "radical_rt.contract.params", "radical_rt.kernels.ud",
+FORBIDDEN = ("radical_rt.kernels.model", "radical_rt.kernels.tracker_model", "radical_rt.kernels.parametrization",
+             "radical_rt.engine.filter", "radical_rt.contract.params", "radical_rt.kernels.ud",
              "radical_rt.kernels.propagate", "radical_rt.clock.siru_clock", "radical_rt.fdi.monitor", "radical_rt.apps.batch")
 
 
