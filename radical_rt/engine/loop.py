@@ -35,6 +35,7 @@ import numpy as np
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.events import load_scalars
 from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.engine.loop_layout import (
     CFG_ARW_VAR,
@@ -77,7 +78,6 @@ from radical_rt.engine.steps import (
     close_window,
     fold,
     init_attitude,
-    load_scalars,
     numeric_fault,
     warm_reset,
     window_state,

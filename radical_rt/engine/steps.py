@@ -36,10 +36,7 @@ from radical_rt.engine.loop_layout import (
     CFG_ST_STALE,
     CFG_TIMING_CONSIDER,
     CNT_ATT_INITS,
-    CNT_END,
     CNT_FLAGS,
-    CNT_FLAGS0,
-    CNT_MASKED,
     CNT_NUMERIC,
     CNT_NUMERIC_CODE,
     CNT_PAR_EARLY,
@@ -48,7 +45,6 @@ from radical_rt.engine.loop_layout import (
     CNT_PAR_SUMS,
     CNT_PAR_USED,
     CNT_RESETS,
-    CNT_USED,
     IO_ATT_VALID,
     IO_LAST_ST1,
     IO_LAST_ST2,
@@ -62,8 +58,6 @@ from radical_rt.engine.loop_layout import (
     IO_PAR_Z,
     IO_SIG_T,
     IO_T,
-    IO_WAKE_E,
-    IO_WAKE_T,
 )
 from radical_rt.kernels.model import fold_correction, parity_from_stats
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
@@ -372,24 +366,6 @@ def parity_update(par_y, par_t, noise, E, cfg, io, cnt):
     else:
         cnt[CNT_PAR_USED] += 1
         io[IO_NIS_SUM_PAR] += nis
-
-
-@inline_kernel
-def load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
-                 s_mode, s_flags, s_nis_par):
-    """The engine's scalar state into io and cnt at the start of a call (LoopShell._loop_begin;
-    Python reads it back after the call): engine time [s], lock latch [s], σ of the time line
-    [s], wake_t and wake_e [s], attitude valid (0/1), last valid ST1 and ST2 epochs [s], mode
-    code, flags, and the sum of the parity NIS. The per-call counters of cnt (CNT_USED on) ← 0,
-    CNT_MASKED ← −1."""
-    io[IO_T], io[IO_LOCKED_SINCE], io[IO_SIG_T] = s_t, s_locked, s_sig_t
-    io[IO_WAKE_T], io[IO_WAKE_E], io[IO_ATT_VALID] = wake_t, wake_e, s_att
-    io[IO_LAST_ST1], io[IO_LAST_ST2], io[IO_MODE] = s_last1, s_last2, s_mode
-    io[IO_NIS_SUM_PAR] = s_nis_par
-    cnt[CNT_FLAGS], cnt[CNT_FLAGS0] = s_flags, s_flags
-    for i in range(CNT_USED, CNT_END):
-        cnt[i] = 0
-    cnt[CNT_MASKED] = -1
 
 
 @inline_kernel
