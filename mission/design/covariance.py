@@ -15,8 +15,8 @@ into the *noise-free* measurements a perfect sensor set would give at the linear
 
 These are released to an unmodified :class:`radical_rt.engine.filter.Engine` exactly as
 :class:`radical_rt.stream.processor.StreamProcessor` releases them (:meth:`Engine.release`: for every
-tracker sample the gyro samples up to its epoch, then the sample; the compiled fast path, the
-same kernels as ``radical process``). Since the measurements equal the engine's prediction, every
+tracker sample the gyro samples up to its epoch, then the sample; the compiled loop of
+``radical process``). Since the measurements equal the engine's prediction, every
 innovation is zero (to round-off) and the estimate stays at the linearization point: what changes
 is the covariance only, propagated and updated by the engine's own models — gyro propagation
 Jacobians and the ARW noise, the regressor reliability κ, parameter random walks, the tracker

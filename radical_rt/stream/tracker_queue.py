@@ -313,7 +313,7 @@ class TrackerQueue:
 
 class EventBlock:
     """Rows start..stop−1 of a :class:`TrackerQueue` (absolute row numbers): what one release
-    gives the engine. Iterating (or :meth:`event`) gives the reference path's tuples
+    gives the engine. Iterating (or :meth:`event`) gives the Python oracle's tuples
     ``(j, t_epoch, q_meas (4,) copy, n_stars, valid)``."""
 
     __slots__ = ("tq", "f", "i", "out_f", "out_i", "start", "stop")
