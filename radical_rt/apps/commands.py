@@ -13,28 +13,10 @@ Two phases, so that a Zenoh callback never touches filter state:
   state (e.g. at least three gyros stay included), then mutates. It raises :class:`CommandError`
   before any change, so an invalid command changes nothing.
 
-=================  ======================================================================
-command            arguments (SI) → reply fields
-=================  ======================================================================
-status             – → t, mode, flags, flag_names, q_body_from_inertial, est, sigma,
-                   excluded, counters, rejected, summary (CONTRACT §5, paper units), node
-get_params         – → params (active table), default (default table)
-set_params         params {name: value} (active table, all-or-nothing) → params (changed)
-reset_params       – (active ← default) → params
-bump               sigma {name: [1σ per state]}, mode "add"|"scale" (default: table's
-                   bump_mode) → sigma (after the bump), mode. Names carry the paper unit, as
-                   set_params' bump_* names do: b_deg_hr, lam_ppm, mu_ppm, du_arcsec,
-                   dv_arcsec, phi2_arcsec; the reply's sigma uses the same names and units. A
-                   bare group name (b, lam, …) is CONTRACT §3.2's form: its values are SI.
-warm_start         bump true|false (default true: the table's bump) → mode
-cold_start         – → mode
-exclude_gyro       gyro 0..n−1 (at least 3 gyros must stay included) → excluded
-include_gyro       gyro 0..n−1 → excluded
-set_packets        packets {small|medium|large: {fields, period_s | decimation, trigger}} → packets
-checkpoint         – → path (written now; needs the node's --checkpoint PATH)
-end_stream         next "warm"|"cold"|"none" (default "warm"): end of a telemetry stream,
-                   as between two archives of ``radical process`` → summary (before restart)
-=================  ======================================================================
+The commands, their arguments (SI unless named with a paper unit) and their reply fields are
+listed in docs/node.md, "Commands": status, get_params, set_params, reset_params, bump,
+warm_start, cold_start, exclude_gyro, include_gyro, set_packets, checkpoint, end_stream
+(:data:`COMMANDS` maps each name to its parser and applier).
 
 Every argument has a valid range (docs/node.md, "Valid ranges"): parameters
 :data:`radical_rt.contract.params.RANGES`, bump 1σ at most :data:`BUMP_MAX_SI` per group, packet settings
