@@ -44,7 +44,7 @@ from radical_rt.engine.hooks import EngineHooks, NoHooks
 from radical_rt.engine.shell import LoopShell
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.kernels import ud, ud_time
-from radical_rt.kernels.model import fold_correction, refresh_axes
+from radical_rt.kernels.model import refresh_axes
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
 
 
@@ -92,17 +92,11 @@ class Engine(LoopShell, EngineState):
 
     def _size_parity_queue(self) -> None:
         """Room in the parity queue for every sum of a lag (a sum every parity_window samples, at
-        up to twice the nominal sample rate), repacking the state when it grows; the queued sums
-        are kept in order."""
+        up to twice the nominal sample rate), the queued sums kept in order."""
         si = self.si
         need = math.ceil(si.parity_lag_s / (0.5 * si.parity_window * SIRU_PERIOD_S)) + 8
-        if need <= self.pq.shape[0]:
-            return
-        queued = self.parity_queue
-        self.pq, self.pq_i = np.zeros((need, self.pq.shape[1])), np.zeros(2, np.int64)
-        if hasattr(self, "_lay"):
-            self._pack()
-        self.set_parity_queue(queued)
+        if need > self.pq.shape[0]:
+            self.set_parity_queue(self.parity_queue, rows=need)
 
     # ---------------------------------------------------------------- starts and bumps
     def cold_start(self) -> None:
@@ -191,22 +185,21 @@ class Engine(LoopShell, EngineState):
                         row[2 + 2 * n:2 + 4 * n].reshape(2, n).copy(), float(row[1])))
         return out
 
-    def set_parity_queue(self, items) -> None:
-        """Replace the queue by ``items`` (as :attr:`parity_queue` returns them)."""
+    def set_parity_queue(self, items, rows: int = 0) -> None:
+        """Replace the queue by ``items`` (as :attr:`parity_queue` returns them); the ring gets at
+        least ``rows`` rows (repacking the state when it grows)."""
         items = list(items)
-        self._size_parity_queue_for(len(items))
+        rows = max(rows, len(items) + 8 if len(items) > self.pq.shape[0] else 0)
+        if rows > self.pq.shape[0]:
+            self.pq, self.pq_i = np.zeros((rows, self.pq.shape[1])), np.zeros(2, np.int64)
+            if hasattr(self, "_lay"):
+                self._pack()
         n = self.n_gyro
         self.pq_i[:] = (0, len(items))
         for r, (t, y, tt, noise) in enumerate(items):
             self.pq[r, :2] = (t, noise)
             self.pq[r, 2:2 + 2 * n] = np.asarray(y, float).ravel()
             self.pq[r, 2 + 2 * n:2 + 4 * n] = np.asarray(tt, float).ravel()
-
-    def _size_parity_queue_for(self, count: int) -> None:
-        if count > self.pq.shape[0]:
-            self.pq, self.pq_i = np.zeros((count + 8, self.pq.shape[1])), np.zeros(2, np.int64)
-            if hasattr(self, "_lay"):
-                self._pack()
 
     def flush_parity(self) -> None:
         """End of a stream: the open parity sum queued, the sums still waiting for their lag
@@ -244,13 +237,6 @@ class Engine(LoopShell, EngineState):
                 rec[0] += 1
                 rec[1] += nis
         return not edited
-
-    def _apply_correction(self) -> None:
-        """Fold dx into the attitude quaternion and the parameters; dx ← 0."""
-        g = self.geo  # R⁺ = R(δθ)ᵀ R̂, xp⁺ = xp + δp, geometry rebuilt (one kernel call)
-        if fold_correction(self.dx, self.q, self.xp, g.W, g.U, g.V, self.A, self.Minv, self.Gp,
-                           self.N) > 0:
-            self._numeric("sense-axis geometry singular")
 
     def state_restored(self) -> None:
         """After :meth:`set_state`: rebuild what derives from xp (scaled axes, (AAᵀ)⁻¹, pseudo-

@@ -105,34 +105,12 @@ class LoopShell:
     def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """The bookkeeping of the rows e..e_stop−1 of an event block the kernel completed (an
         invalid sample it only counted is skipped): last valid epoch, FDI history and, where the
-        update ran, diagnostics and counters, read from the block's arrays in one pass (the FDI's
-        quaternions and the diagnostics are rows of one copy each)."""
-        if e_stop - e == 1:  # the usual case: one tracker sample per release
-            self._tracker_taken(events, e)
-            return
-        f = events.f
-        heads, epochs = events.i[e:e_stop].tolist(), f[e:e_stop, 0].tolist()
-        quats, outs_f = f[e:e_stop, 1:5].copy(), events.out_f[e:e_stop].copy()
-        outs_i = events.out_i[e:e_stop].tolist()
-        last, fdi = self.last_valid_st, self.fdi
-        for r, head in enumerate(heads):
-            _status, edited, updated, consider = outs_i[r]
-            if updated < 0:  # an invalid sample: the kernel counted it, nothing else to do
-                continue
-            j, t_epoch = head[0], epochs[r]
-            last[j] = t_epoch
-            if fdi is not None:
-                fdi.on_tracker(j, t_epoch, quats[r], head[1])
-            if not updated:  # the attitude's initialization (or ST2 waiting for ST1)
-                continue
-            kind = ST_KIND[j]
-            if consider:
-                self.counters[kind + "_consider"] += 1
-            out_f = outs_f[r]
-            self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+        update ran, diagnostics and counters."""
+        for r in range(e, e_stop):
+            self._tracker_taken(events, r)
 
     def _tracker_taken(self, events, r: int) -> None:
-        """:meth:`_trackers_taken` of the one row r."""
+        """:meth:`_trackers_taken` of row r."""
         _status, edited, updated, consider = events.out_i[r].tolist()
         if updated < 0:
             return

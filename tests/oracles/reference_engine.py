@@ -21,7 +21,7 @@ from radical_rt.engine.engine_state import param_slice
 from radical_rt.engine.filter import Engine
 from radical_rt.engine.shell import ST_EDITED_BIT, ST_KIND
 from radical_rt.kernels import ud
-from radical_rt.kernels.model import parity_from_stats
+from radical_rt.kernels.model import fold_correction, parity_from_stats
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
 from radical_rt.kernels.tracker_model import quat_from_tracker, tracker_rows
@@ -66,7 +66,7 @@ class ReferenceEngine(Engine):
     def parity_queue(self):
         return [(t, y.copy(), tt.copy(), nz) for t, y, tt, nz in getattr(self, "queue", [])]
 
-    def set_parity_queue(self, items) -> None:
+    def set_parity_queue(self, items, rows: int = 0) -> None:
         self.queue = [(t, np.array(y, float), np.array(tt, float), nz) for t, y, tt, nz in items]
 
     def update_mode(self, t: float) -> None:
@@ -166,6 +166,13 @@ class ReferenceEngine(Engine):
         self.par_t[:, :] = 0.0
         self.acc_i[1:] = 0
         self.acc_f[1:3] = 0.0
+
+    def _apply_correction(self) -> None:
+        """Fold dx into the attitude quaternion and the parameters; dx ← 0 (the loop's steps.fold)."""
+        g = self.geo  # R⁺ = R(δθ)ᵀ R̂, xp⁺ = xp + δp, geometry rebuilt (one kernel call)
+        if fold_correction(self.dx, self.q, self.xp, g.W, g.U, g.V, self.A, self.Minv, self.Gp,
+                           self.N) > 0:
+            self._numeric("sense-axis geometry singular")
 
     def _cov_close_window(self, noise_var: float) -> float:
         status, kappa = close_time_window(
