@@ -21,6 +21,7 @@ import sys
 
 from monitors.common import VEHICLE_RE
 from monitors.view import STALE_S
+from radical_rt.io import zauth
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -30,6 +31,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="connect to a loopback endpoint (default tcp/127.0.0.1:7448, the node's)")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 file loaded first "
                    "(loopback endpoints and multicast off are still enforced)")
+    zauth.add_auth_arguments(p, "monitor")
 
 
 def _stale(p: argparse.ArgumentParser) -> None:
@@ -93,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
         for ep in (args.listen, args.connect):
             if ep is not None:
                 zconfig.check_endpoint(ep)
-    except zconfig.ZenohConfigError as e:
+        args.session_auth = zauth.from_args(args, "monitor")
+    except (zconfig.ZenohConfigError, zauth.AuthError) as e:
         return _err(str(e))
     if kind != "foxglove" and not args.stale_s > 0:
         return _err("--stale-s must be > 0")
@@ -104,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             return _err(f"the tui needs textual (pip install textual): {e}")
         try:
             return run_tui(args.vehicle, args.listen, args.connect, args.zenoh_config, args.refresh,
-                           args.stale_s)
+                           args.stale_s, auth=args.session_auth)
         except Exception as e:  # zenoh session failures
             print(f"radical monitor tui: {type(e).__name__}: {e}", file=sys.stderr)
             return 1
@@ -122,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
 
     store = LatestStore()
     try:
-        source = ZenohSource(store, None, args.listen, args.connect, args.zenoh_config).start()
+        source = ZenohSource(store, None, args.listen, args.connect, args.zenoh_config,
+                             auth=args.session_auth).start()
     except Exception as e:
         print(f"radical monitor web: cannot open Zenoh session: {type(e).__name__}: {e}",
               file=sys.stderr)
@@ -148,4 +152,4 @@ def _run_foxglove(args: argparse.Namespace) -> int:
     except ImportError as e:
         return _err(f"the foxglove bridge needs foxglove-sdk (pip install foxglove-sdk): {e}")
     return serve_foxglove(args.vehicle, args.port, args.listen, args.connect, args.zenoh_config,
-                          args.duration)
+                          args.duration, auth=args.session_auth)

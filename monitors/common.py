@@ -100,3 +100,22 @@ def excitation_text(ex: dict | None) -> str:
     if ex.get("rotate_about"):
         tail += f"  (axes not yet turned about: {', '.join(ex['rotate_about'])})"
     return f"{ex['window_s']:.0f} s, rotated {ex['rotation_deg']:.1f}°; gain {gains}{tail}"
+
+
+def monitor_config(listen: str | None, connect: str | None, zenoh_config: str | None,
+                   auth: Any = None) -> Any:
+    """The zenoh.Config of a live monitor: loopback endpoints (neither: connect to the node's
+    default), multicast off; ``auth`` (a ``radical_rt.io.zauth.SessionAuth``): a client of the
+    profile's endpoint with the user's credentials (a monitor never listens then)."""
+    from radical_rt.io import zconfig
+
+    default = auth.profile.endpoint if auth is not None else None
+    listen_eps, connect_eps = zconfig.endpoints(listen, connect, role="monitor", default=default)
+    if auth is None:
+        return zconfig.make_config("peer", listen=listen_eps, connect=connect_eps,
+                                   config_file=zenoh_config)
+    if listen_eps:
+        raise zconfig.ZenohConfigError("with --auth a monitor connects to the node or a router "
+                                       "(--connect), it does not --listen")
+    return zconfig.make_config("client", connect=connect_eps, config_file=zenoh_config,
+                               extra=auth.settings(listening=False))

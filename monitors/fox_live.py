@@ -31,7 +31,7 @@ from typing import Any
 
 import msgpack
 
-from monitors.common import vehicle_of
+from monitors.common import monitor_config, vehicle_of
 from monitors.fox_convert import DERIVED_SCHEMAS, LOG_TOPIC, FoxgloveConverter, stamp
 from monitors.fox_schema import LOG_LEVELS, SchemaBuilder, known_schema
 
@@ -43,9 +43,10 @@ class FoxgloveBridge:
 
     def __init__(self, vehicle: str, port: int = 8765, listen: str | None = None,
                  connect: str | None = None, zenoh_config: str | None = None,
-                 queue_size: int = 10000) -> None:
+                 queue_size: int = 10000, auth: Any = None) -> None:
         self.vehicle, self.port = vehicle, port
         self.listen, self.connect, self.zenoh_config = listen, connect, zenoh_config
+        self.auth = auth  # radical_rt.io.zauth.SessionAuth (--auth DIR --role ROLE) or None
         self._q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._conv = FoxgloveConverter()
@@ -64,7 +65,6 @@ class FoxgloveBridge:
         import foxglove
         import zenoh
 
-        from radical_rt.io import zconfig
 
         self._ctx = foxglove.Context()
         self.server = foxglove.start_server(name=f"radical-rt {self.vehicle}", host="127.0.0.1",
@@ -72,9 +72,7 @@ class FoxgloveBridge:
         for topic in DERIVED_SCHEMAS:  # known schemas: advertised at once (panels can be set up)
             if "truth" not in topic:  # the node publishes no truth
                 self._channels[topic] = self._channel(topic, {})
-        listen, connect = zconfig.endpoints(self.listen, self.connect, role="monitor")
-        cfg = zconfig.make_config("peer", listen=listen, connect=connect,
-                                  config_file=self.zenoh_config)
+        cfg = monitor_config(self.listen, self.connect, self.zenoh_config, self.auth)
         try:
             self.session = zenoh.open(cfg)
         except Exception:
@@ -181,10 +179,10 @@ class FoxgloveBridge:
 
 
 def serve(vehicle: str, port: int, listen: str | None, connect: str | None,
-          zenoh_config: str | None, duration: float | None = None) -> int:
+          zenoh_config: str | None, duration: float | None = None, auth: Any = None) -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``duration`` s); exit status."""
     try:
-        bridge = FoxgloveBridge(vehicle, port, listen, connect, zenoh_config).start()
+        bridge = FoxgloveBridge(vehicle, port, listen, connect, zenoh_config, auth=auth).start()
     except Exception as e:
         print(f"radical monitor foxglove: cannot start: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

@@ -25,7 +25,7 @@ from typing import Any
 
 import msgpack
 
-from monitors.common import VEHICLE_RE, vehicle_of
+from monitors.common import VEHICLE_RE, monitor_config, vehicle_of
 
 #: Topics a monitor subscribes to (CONTRACT §2 outputs of the filter node).
 TOPICS = ("tlm/large", "tlm/medium", "tlm/small", "fault", "diag")
@@ -188,22 +188,20 @@ class ZenohSource:
     """
 
     def __init__(self, store: LatestStore, vehicle: str | None = None, listen: str | None = None,
-                 connect: str | None = None, zenoh_config: str | None = None) -> None:
+                 connect: str | None = None, zenoh_config: str | None = None,
+                 auth: Any = None) -> None:
         if vehicle is not None and not VEHICLE_RE.match(vehicle):
             raise ValueError(f"vehicle {vehicle!r} must match [a-z0-9_-]+")
         self.store, self.vehicle = store, vehicle
         self.listen, self.connect, self.zenoh_config = listen, connect, zenoh_config
+        self.auth = auth  # radical_rt.io.zauth.SessionAuth (--auth DIR --role ROLE) or None
         self.session: Any = None
         self._decls: list[Any] = []
 
     def start(self) -> ZenohSource:
         import zenoh
 
-        from radical_rt.io import zconfig
-
-        listen, connect = zconfig.endpoints(self.listen, self.connect, role="monitor")
-        cfg = zconfig.make_config("peer", listen=listen, connect=connect,
-                                  config_file=self.zenoh_config)
+        cfg = monitor_config(self.listen, self.connect, self.zenoh_config, self.auth)
         self.session = zenoh.open(cfg)
         v = self.vehicle or "*"
         store = self.store

@@ -219,10 +219,10 @@ class MonitorApp(App):
 
 def run_tui(vehicle: str | None, listen: str | None, connect: str | None,
             zenoh_config: str | None = None, refresh_s: float = 0.5,
-            stale_s: float = STALE_S) -> int:
+            stale_s: float = STALE_S, auth: Any = None) -> int:
     from monitors.live import ZenohSource
 
     store = LatestStore()
-    source = ZenohSource(store, vehicle, listen, connect, zenoh_config).start()
+    source = ZenohSource(store, vehicle, listen, connect, zenoh_config, auth=auth).start()
     MonitorApp(store, vehicle, source=source, refresh_s=refresh_s, stale_s=stale_s).run()
     return 0

@@ -57,6 +57,7 @@ import signal
 import sys
 import threading
 
+from radical_rt.io import zauth
 from radical_rt.io.archive import ArchiveError
 from radical_rt.io.outpaths import output_file
 from replayer.recorder import RecordError, check_vehicle, parse_topics, record
@@ -81,6 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "default endpoint tcp/127.0.0.1:7448)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="Zenoh JSON5 file loaded first (endpoints and scouting still enforced)")
+    zauth.add_auth_arguments(p, "operator")
     p.add_argument("--flush-every", type=float, default=0.5, metavar="S",
                    help="close the chunk and flush the file every S seconds (default 0.5)")
     p.add_argument("--queue", type=int, default=65536, metavar="N",
@@ -121,8 +123,15 @@ def run(args: argparse.Namespace) -> int:
             raise RecordError(f"{args.output}: is a directory")
         if not os.path.isdir(out_dir):
             raise RecordError(f"{args.output}: cannot create archive: no directory {out_dir}")
-        cfg, mode, where = tool_config(args.listen, args.connect, "record", args.zenoh_config)
-    except (RecordError, zconfig.ZenohConfigError) as e:
+        sa = zauth.from_args(args, "operator")
+        if sa is not None and args.topics is None:  # a "**" subscription is not granted
+            if not zauth.readable_topics(sa.role):
+                raise zauth.AuthError(f"role {sa.role} may not subscribe to anything: record "
+                                      "with --role operator (inputs and outputs) or monitor")
+            args.topics = ",".join(zauth.readable_topics(sa.role))
+        cfg, mode, where = tool_config(args.listen, args.connect, "record", args.zenoh_config,
+                                       auth=sa)
+    except (RecordError, zconfig.ZenohConfigError, zauth.AuthError) as e:
         _err(str(e))
         return 2
     except Exception as e:  # e.g. an unreadable --zenoh-config file

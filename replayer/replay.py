@@ -55,6 +55,7 @@ import time
 import warnings
 from typing import Any
 
+from radical_rt.io import zauth
 from radical_rt.io.archive import ArchiveError, TruncatedArchiveWarning
 from replayer.publish import check_inputs, replay
 from replayer.sessions import (
@@ -113,6 +114,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "default endpoint tcp/127.0.0.1:7448)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="Zenoh JSON5 file loaded first (endpoints and scouting still enforced)")
+    zauth.add_auth_arguments(p, "sensor")
     p.add_argument("--wait-node", nargs="?", type=_wait_arg, const=DEFAULT_WAIT_S, default=None,
                    metavar="TIMEOUT", help="wait up to TIMEOUT (default 10 s) for the node's "
                    "liveliness token and for subscribers on every published key before starting. "
@@ -167,8 +169,9 @@ def run(args: argparse.Namespace) -> int:
         sources, notes = check_inputs(args.inputs, args.start, args.end)
         if not (math.isfinite(args.gap) and args.gap >= 0):
             raise ReplayError(f"--gap must be >= 0 s, got {args.gap!r}")
-        cfg, mode, where = tool_config(args.listen, args.connect, "replay", args.zenoh_config)
-    except (ReplayError, ArchiveError, zconfig.ZenohConfigError) as e:
+        cfg, mode, where = tool_config(args.listen, args.connect, "replay", args.zenoh_config,
+                                       auth=zauth.from_args(args, "sensor"))
+    except (ReplayError, ArchiveError, zconfig.ZenohConfigError, zauth.AuthError) as e:
         _err(str(e))
         return 2
     except Exception as e:  # e.g. an unreadable --zenoh-config file

@@ -36,19 +36,28 @@ def check_vehicle(vehicle: str) -> str:
 
 
 def tool_config(listen: str | None, connect: str | None, role: str,
-                config_file: str | None = None) -> tuple[Any, str, str]:
+                config_file: str | None = None, auth: Any = None) -> tuple[Any, str, str]:
     """``(zenoh.Config, mode, description)`` for a tool (replay, record).
 
     Endpoints are ``zconfig.endpoints`` (neither option: connect to the node's default). A tool
     that listens is a peer; a tool that only connects is a **client** of that endpoint: the node
     is a peer, and a peer routes for its clients but does not relay between two peers that both
     only connect to it, so two peer tools (``radical replay`` → ``radical record``) would not see
-    each other through the node."""
+    each other through the node.
+
+    ``auth``: a :class:`radical_rt.io.zauth.SessionAuth` (``--auth DIR --role ROLE``): the
+    profile's endpoint by default and the user's credentials; such a tool only connects (the
+    node or a router is the enforcement point), ZenohConfigError if it would listen."""
     from radical_rt.io import zconfig
 
-    lst, con = zconfig.endpoints(listen, connect, role=role)
+    lst, con = zconfig.endpoints(listen, connect, role=role,
+                                 default=auth.profile.endpoint if auth is not None else None)
+    if auth is not None and lst:
+        raise zconfig.ZenohConfigError("with --auth a tool connects to the node or a router "
+                                       "(--connect), it does not --listen")
     mode = "peer" if lst else "client"
-    cfg = zconfig.make_config(mode, listen=lst, connect=con, config_file=config_file)
+    cfg = zconfig.make_config(mode, listen=lst, connect=con, config_file=config_file,
+                              extra=auth.settings(listening=False) if auth is not None else None)
     where = ", ".join([f"listening on {e}" for e in lst] + [f"connecting to {e}" for e in con])
     return cfg, mode, where
 

@@ -17,8 +17,9 @@ Threads and ownership:
   vehicle): it feeds the samples in arrival order, publishes the outputs on
   ``radical/<vehicle>/<topic>`` (to other sessions only), applies pending commands between two
   messages and writes periodic checkpoints;
-* query callbacks on ``radical/<vehicle>/cmd`` parse and validate a command
-  (:mod:`radical_rt.apps.commands`), queue it for the loop, wake the loop if it is waiting for input
+* query callbacks on ``radical/<vehicle>/cmd`` and ``cmd/{read,write}/<user>`` check who may
+  send it and audit it (:mod:`radical_rt.apps.cmd_access`, with the security profile ``auth``),
+  parse and validate a command (:mod:`radical_rt.apps.commands`), queue it for the loop, wake the loop if it is waiting for input
   (:meth:`Inbox.wake`) and wait for its reply. A ticker wakes a waiting loop every ``TICK_S`` for
   the periodic checkpoints and overflow reports.
 
@@ -44,6 +45,7 @@ from collections.abc import Callable
 from typing import Any
 
 from radical_rt.apps import commands
+from radical_rt.apps.cmd_access import AuditLog, handle_query
 from radical_rt.apps.command_queue import CommandQueue
 from radical_rt.apps.link_watch import check_links, input_seen
 from radical_rt.apps.node_eos import end_of_stream, release_idle
@@ -51,6 +53,7 @@ from radical_rt.apps.node_timing import LoopTiming
 from radical_rt.apps.node_vehicle import Vehicle, note_reject, packb, report_fifo_losses
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.transport import Inbox, Transport
+from radical_rt.io.zauth import Profile
 from radical_rt.io.zenoh_transport import ZenohTransport
 from radical_rt.stream.eos import EOS_TOPIC
 from radical_rt.stream.processor import INPUT_TOPICS, StreamProcessor
@@ -97,7 +100,8 @@ class FilterNode:
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
                  timing: LoopTiming | None = None, rt_priority: int | None = None,
                  idle_release_s: float | None = None, max_payload_bytes: int | None = None,
-                 queue_bytes: int | None = QUEUE_BYTES, stale_after_s: float | None = None):
+                 queue_bytes: int | None = QUEUE_BYTES, stale_after_s: float | None = None,
+                 auth: Profile | None = None):
         if not processors:
             raise ValueError("at least one vehicle is needed")
         if queue_size < 1 or checkpoint_every_s <= 0 or (queue_bytes is not None and queue_bytes < 1):
@@ -120,6 +124,9 @@ class FilterNode:
         self.block_outputs = block_outputs
         self.command_timeout_s = command_timeout_s
         self._cmdq = CommandQueue()
+        self.auth = auth  # the security profile (None: unauthenticated)
+        self.audit = AuditLog(auth, lambda key, data: transport.put(key, data, block=True,
+                                                                  remote_only=True))
         self._mono = monotonic
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -156,8 +163,9 @@ class FilterNode:
         self._ticker = threading.Thread(target=self._tick, name="radical-tick", daemon=True)
         self._ticker.start()
         for v in self.vehicles.values():
-            self._handles.append(self.transport.queryable(
-                v.prefix + "cmd", functools.partial(self._on_query, v)))
+            for key in ("cmd", "cmd/*/*"):  # the contract's key, the users' keys (cmd_access)
+                self._handles.append(self.transport.queryable(
+                    v.prefix + key, functools.partial(self._on_query, v), keyed=True))
             self._handles.append(self.transport.liveliness_token(v.prefix + "alive/filter"))
         log.info("serving %s", ", ".join(self.vehicles))
 
@@ -217,14 +225,13 @@ class FilterNode:
         return False
 
     # ------------------------------------------------------------------ query callbacks
-    def _on_query(self, v: Vehicle, data: bytes) -> bytes:
-        try:
-            cmd = commands.parse(data, v.sp.engine.n_gyro)
-        except commands.CommandError as exc:
-            return packb(commands.error_reply(str(exc), exc))
+    def _on_query(self, v: Vehicle, key: str, data: bytes) -> bytes:
+        return packb(handle_query(v, key, data, self.audit, self._submit))
+
+    def _submit(self, v: Vehicle, cmd: commands.Command) -> dict[str, Any]:
         if not self.running or self._stop.is_set():
-            return packb(commands.error_reply("node is shutting down", cmd))
-        return packb(self._cmdq.submit(v, cmd, self.command_timeout_s, self._wake_if_idle))
+            return commands.error_reply("node is shutting down", cmd)
+        return self._cmdq.submit(v, cmd, self.command_timeout_s, self._wake_if_idle)
 
     def _wake_if_idle(self) -> None:
         if self._idle and self._inbox is not None:  # the loop waits for input: wake it

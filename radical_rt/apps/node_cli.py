@@ -19,8 +19,9 @@ import signal
 import sys
 import threading
 import time
+from typing import Any
 
-from radical_rt.io import zconfig
+from radical_rt.io import zauth, zconfig
 from radical_rt.io.outpaths import output_file
 
 log = logging.getLogger("radical.node")
@@ -40,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Zenoh session mode (default peer)")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration loaded first "
                    "(endpoints and multicast scouting are still forced to the loopback rules)")
+    zauth.add_auth_arguments(p, "node")
     p.add_argument("--config", metavar="PARAMS.toml", help="parameter overrides ([params] table)")
     p.add_argument("--packets", metavar="PACKETS.toml", help="telemetry packet configuration")
     p.add_argument("--clock", choices=("reconstruct", "naive"), default="reconstruct",
@@ -150,7 +152,6 @@ def run(args: argparse.Namespace) -> int:
     from radical_rt.contract.params import ParamError
     from radical_rt.io.checkpoint import CheckpointError
     from radical_rt.io.transport import TransportError
-    from radical_rt.io.zenoh_transport import ZenohTransport
     from radical_rt.stream.telemetry import PacketError
 
     try:
@@ -169,10 +170,9 @@ def run(args: argparse.Namespace) -> int:
     gc.collect()
     gc.freeze()
 
-    listen, connect = zconfig.endpoints(args.listen, args.connect, "node")
     try:
-        transport = ZenohTransport(args.mode, listen, connect, config_file=args.zenoh_config)
-    except (TransportError, zconfig.ZenohConfigError) as exc:
+        transport, sa, listen, connect = _open_session(args)
+    except (TransportError, zconfig.ZenohConfigError, zauth.AuthError) as exc:
         return _fail(str(exc))
     timing = None
     if args.timing_out:
@@ -185,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
                       idle_release_s=args.idle_release or None,
                       max_payload_bytes=args.max_payload,
                       queue_bytes=args.queue_bytes or None,
-                      stale_after_s=args.stale_after or None)
+                      stale_after_s=args.stale_after or None,
+                      auth=sa.profile if sa is not None else None)
     stop = threading.Event()
     got: list[str] = []
 
@@ -226,3 +227,30 @@ def run(args: argparse.Namespace) -> int:
         for s, h in old.items():
             signal.signal(s, h)
     return 1 if node.loop_error is not None else 0
+
+
+def _open_session(args: argparse.Namespace) -> tuple[Any, zauth.SessionAuth | None, list[str],
+                                                    list[str]]:
+    """The node's Zenoh transport and its authentication (``--auth``/``--role``). Listening
+    with a profile, the node is the enforcement point (usrpwd dictionary, access control, TLS
+    server certificate); connecting only, it is a client of a router that enforces them."""
+    from radical_rt.io.zenoh_transport import ZenohTransport
+
+    sa = zauth.from_args(args, "node")
+    listen, connect = zconfig.endpoints(args.listen, args.connect, "node",
+                                        default=sa.profile.endpoint if sa else None)
+    mode, extra = args.mode, None
+    if sa is not None:
+        extra = sa.profile.client_settings(sa.user)
+        if listen:
+            extra.update(sa.settings(listening=True))
+        else:
+            mode = "client"  # a router enforces the profile; a peer would gossip around it
+        log.info("security profile %s: %s, user %s (role %s)", sa.profile.directory,
+                 sa.profile.describe()["auth"], sa.user, sa.role)
+    else:
+        log.warning("UNAUTHENTICATED: no --auth profile, so any process that reaches %s can read "
+                    "every key, publish inputs and send any command (docs/security.md; create a "
+                    "profile with `radical keys init DIR`)", ", ".join(listen + connect))
+    transport = ZenohTransport(mode, listen, connect, config_file=args.zenoh_config, extra=extra)
+    return transport, sa, listen, connect

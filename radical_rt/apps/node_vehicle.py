@@ -102,6 +102,8 @@ class Vehicle:
                 "queue_depth": n.queue_depth(), "queue_size": n.queue_size,
                 "queue_bytes": n.queue_bytes, "queue_bytes_used": n.queue_bytes_used(),
                 "commands_applied": self.commands_applied, "published": dict(self.published),
+                "commands": n.audit.summary(self.name),
+                "security": n.auth.describe() if n.auth is not None else {"auth": "none"},
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
                 "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,

@@ -19,7 +19,13 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from radical_rt.io.transport import QueryHandler, SampleCallback, TransportError, key_matches
+from radical_rt.io.transport import (
+    KeyedQueryHandler,
+    QueryHandler,
+    SampleCallback,
+    TransportError,
+    key_matches,
+)
 
 log = logging.getLogger("radical.transport")
 
@@ -212,8 +218,10 @@ class InMemoryTransport:
         box.decl = self.subscribe(key, box.push, remote_only=True)
         return box
 
-    def queryable(self, key: str, handler: QueryHandler) -> _Decl:
-        return self._declare("qbl", key, handler)
+    def queryable(self, key: str, handler: QueryHandler | KeyedQueryHandler,
+                  keyed: bool = False) -> _Decl:
+        fn = handler if keyed else (lambda _key, payload: handler(payload))
+        return self._declare("qbl", key, fn)
 
     def liveliness_token(self, key: str) -> _Decl:
         return self._declare("token", key, None)
@@ -236,14 +244,14 @@ class InMemoryTransport:
         replies: list[bytes] = []
         for d in self.bus.find("qbl", key):
             if d.worker is None:
-                replies.append(bytes(d.fn(bytes(payload))))
+                replies.append(bytes(d.fn(key, bytes(payload))))
                 continue
             done = threading.Event()
             box: list[bytes] = []
 
             def call(d: _Decl = d, box: list[bytes] = box, done: threading.Event = done) -> None:
                 try:
-                    box.append(bytes(d.fn(bytes(payload))))
+                    box.append(bytes(d.fn(key, bytes(payload))))
                 finally:
                     done.set()
 

@@ -11,7 +11,8 @@ The node only needs five things from a middleware, all with raw ``bytes`` payloa
 * ``put(key, payload, block=False, remote_only=False)``: publish (``block=True`` = BLOCK
   congestion control, for data that must not be lost; otherwise DROP; ``remote_only``: not
   delivered to this transport's own subscribers and inboxes);
-* ``queryable(key, handler)``: ``handler(payload) -> reply bytes`` answers queries on a key;
+* ``queryable(key, handler, keyed=False)``: ``handler(payload) -> reply bytes`` answers queries on
+  a key expression (``keyed=True``: ``handler(query_key, payload)``, the query's own key);
 * ``liveliness_token(key)``: a token visible while the session lives;
 * ``close()``.
 
@@ -36,6 +37,7 @@ from typing import Protocol
 
 SampleCallback = Callable[[str, bytes], None]
 QueryHandler = Callable[[bytes], bytes]
+KeyedQueryHandler = Callable[[str, bytes], bytes]
 
 
 class TransportError(RuntimeError):
@@ -76,7 +78,8 @@ class Transport(Protocol):
     def put(self, key: str, payload: bytes, block: bool = False,
             remote_only: bool = False) -> None: ...
 
-    def queryable(self, key: str, handler: QueryHandler) -> Handle: ...
+    def queryable(self, key: str, handler: QueryHandler | KeyedQueryHandler,
+                  keyed: bool = False) -> Handle: ...
 
     def liveliness_token(self, key: str) -> Handle: ...
 

@@ -17,7 +17,7 @@ from typing import Any
 
 DEFAULT_PORT = 7448
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
-_LOOPBACK = re.compile(r"^tcp/(127\.\d{1,3}\.\d{1,3}\.\d{1,3}|localhost|\[::1\]):(\d{1,5})$")
+_LOOPBACK = re.compile(r"^(?:tcp|tls)/(127\.\d{1,3}\.\d{1,3}\.\d{1,3}|localhost|\[::1\]):(\d{1,5})$")
 
 
 class ZenohConfigError(ValueError):
@@ -25,10 +25,12 @@ class ZenohConfigError(ValueError):
 
 
 def check_endpoint(ep: str) -> str:
-    """Return ep if it is a loopback TCP locator (tcp/127.x.x.x:PORT, tcp/localhost:PORT)."""
+    """Return ep if it is a loopback TCP or TLS locator (tcp/127.x.x.x:PORT, tcp/localhost:PORT,
+    tls/127.0.0.1:PORT)."""
     m = _LOOPBACK.match(ep) if isinstance(ep, str) else None
     if m is None:
-        raise ZenohConfigError(f"endpoint {ep!r} is not a loopback locator like tcp/127.0.0.1:7448")
+        raise ZenohConfigError(f"endpoint {ep!r} is not a loopback locator like tcp/127.0.0.1:7448 "
+                                "(or tls/127.0.0.1:7448)")
     if not 1 <= int(m.group(2)) <= 65535:
         raise ZenohConfigError(f"endpoint {ep!r}: port must be 1..65535, got {int(m.group(2))}")
     return ep
@@ -62,8 +64,12 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def endpoints(listen: str | None, connect: str | None, role: str) -> tuple[list[str], list[str]]:
-    """Resolve --listen/--connect for a tool: role "node" listens on the default, others connect."""
+def endpoints(listen: str | None, connect: str | None, role: str,
+              default: str | None = None) -> tuple[list[str], list[str]]:
+    """Resolve --listen/--connect for a tool: role "node" listens on the default, others connect
+    to it. default: the endpoint used when neither is given (None: :data:`DEFAULT_ENDPOINT`; a
+    security profile's own endpoint, e.g. ``tls/127.0.0.1:7448``)."""
     if listen or connect:
         return ([listen] if listen else []), ([connect] if connect else [])
-    return ([DEFAULT_ENDPOINT], []) if role == "node" else ([], [DEFAULT_ENDPOINT])
+    ep = default or DEFAULT_ENDPOINT
+    return ([ep], []) if role == "node" else ([], [ep])

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from radical_rt.io import zconfig
-from radical_rt.io.transport import QueryHandler, SampleCallback, TransportError
+from radical_rt.io.transport import KeyedQueryHandler, QueryHandler, SampleCallback, TransportError
 from radical_rt.io.zinbox import ZByteInbox, ZInbox
 
 log = logging.getLogger("radical.transport")
@@ -101,11 +101,13 @@ class ZenohTransport:
             return ZByteInbox(self, key, capacity, wait_s, capacity_bytes, max_payload)
         return ZInbox(self, key, capacity, max_payload)
 
-    def queryable(self, key: str, handler: QueryHandler) -> _ZHandle:
+    def queryable(self, key: str, handler: QueryHandler | KeyedQueryHandler,
+                  keyed: bool = False) -> _ZHandle:
         def on_query(q: Any) -> None:
             with q:  # dropping the query ends the getter's reply stream
                 try:
-                    reply = handler(q.payload.to_bytes() if q.payload is not None else b"")
+                    payload = q.payload.to_bytes() if q.payload is not None else b""
+                    reply = handler(str(q.key_expr), payload) if keyed else handler(payload)
                     q.reply(q.key_expr, reply, encoding=self.zenoh.Encoding(self.ENCODING))
                 except Exception as exc:  # never leave a getter waiting for its timeout
                     log.exception("query handler failed")
