@@ -98,11 +98,11 @@ class AuditLog:
                request: dict[str, Any] | None, reply: dict[str, Any]) -> dict[str, Any]:
         """Audit one command (applied if ``reply["ok"]``); the record."""
         ok = bool(reply.get("ok"))
+        req = request if isinstance(request, dict) else {}
         rec: dict[str, Any] = {
             "v": 1, "t_wall": time.time(), "vehicle": vehicle, **self.who(access, user),
-            "key": access, "cmd": (request or {}).get("cmd") if isinstance(request, dict) else None,
-            "args": _args_of(request), "id": (request or {}).get("id"), "ok": ok,
-            "error": None if ok else str(reply.get("error", ""))}
+            "key": access, "cmd": req.get("cmd"), "args": _args_of(request), "id": req.get("id"),
+            "ok": ok, "error": None if ok else str(reply.get("error", ""))}
         with self._lock:
             counts = self._applied if ok else self._refused
             counts[vehicle] = counts.get(vehicle, 0) + 1

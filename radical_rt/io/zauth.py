@@ -171,7 +171,10 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
     rules = [
         _rule("node_all", ALL_MESSAGES, ["ingress", "egress"], ["radical/**"]),
         _rule("inputs_put", ["put"], ["ingress"], inputs),
-        _rule("inputs_matching", ["declare_subscriber"], ["egress"], inputs),
+        # routes: a client only sends a put when it knows a matching subscriber, and the node
+        # subscribes with wildcards (radical/<V>/*, radical/*/*): the declarations (key
+        # expressions, never data) are shown to every client
+        _rule("routes", ["declare_subscriber"], ["egress"], ["radical/**"]),
         _rule("inputs_read", ["declare_subscriber"], ["ingress"], inputs),
         _rule("inputs_read_out", ["put"], ["egress"], inputs),
         _rule("outputs_read", ["declare_subscriber"], ["ingress"], outputs),
@@ -180,11 +183,12 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
         _rule("alive_read_out", ["liveliness_token", "reply"], ["egress"], alive),
         _rule("cmd_routes", ["declare_queryable"], ["egress"], ["radical/*/cmd/**"]),
     ]
-    role_rules = {"node": ["node_all"], "sensor": ["inputs_put", "inputs_matching", "alive_read",
+    role_rules = {"node": ["node_all"], "sensor": ["inputs_put", "routes", "alive_read",
                                                    "alive_read_out"],
-                  "monitor": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out"],
+                  "monitor": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
+                              "routes"],
                   "operator": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
-                               "inputs_read", "inputs_read_out"]}
+                               "inputs_read", "inputs_read_out", "routes"]}
     subjects, policies = [], []
     for i, (user, role) in enumerate(sorted(users.items())):
         sid = f"u{i}_{user}"
