@@ -234,8 +234,11 @@ def _open_session(args: argparse.Namespace) -> tuple[Any, zauth.SessionAuth | No
     """The node's Zenoh transport and its authentication (``--auth``/``--role``). Listening
     with a profile, the node is the enforcement point (usrpwd dictionary, access control, TLS
     server certificate); connecting only, it is a client of a router that enforces them."""
+    import zenoh
+
     from radical_rt.io.zenoh_transport import ZenohTransport
 
+    zenoh.try_init_log_from_env()  # Zenoh's own log (e.g. ACL denials) only if RUST_LOG is set
     sa = zauth.from_args(args, "node")
     listen, connect = zconfig.endpoints(args.listen, args.connect, "node",
                                         default=sa.profile.endpoint if sa else None)

@@ -175,6 +175,23 @@ def _build() -> dict[str, dict[str, Any]]:
     add("/diag", "free-form diagnostics (innovations, NIS, edit decisions, UD health, clock fit; "
         "SI units)", {"t": _T_EST}, [])
 
+    text = {"type": ["string", "null"]}
+    add("/cmd_log", "audit record of one command received by the node, applied or refused "
+        "(extension, docs/security.md)", {
+            "t_wall": _num("wall-clock time the node answered (Unix s)"),
+            "vehicle": {"type": "string", "description": "vehicle the command was for"},
+            "user": {"type": "string", "description": "sender: the user of the command key, "
+                     "or 'anonymous' on the contract key"},
+            "role": {**text, "description": "the user's role in the node's profile (null: none)"},
+            "authenticated": {"type": "boolean", "description": "the user was checked by the "
+                              "node's security profile (false: claimed or unknown)"},
+            "key": {"type": "string", "description": "contract, read or write"},
+            "cmd": {**text, "description": "command name (null: unreadable request)"},
+            "args": {"type": ["object", "null"], "description": "arguments as sent"},
+            "ok": {"type": "boolean", "description": "applied (true) or refused"},
+            "error": {**text, "description": "why it was refused"},
+        }, ["t_wall", "vehicle", "user", "key", "ok"])
+
     # ---- truth (simulated archives only; ignored by the filter)
     add("/truth/attitude", "true attitude and rate (>= 10 Hz)", {
         "t_bus": _T_BUS,

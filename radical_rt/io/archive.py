@@ -47,6 +47,7 @@ _first = operator.itemgetter(0)
 INPUT_TOPICS = ("/siru", "/st1", "/st2", "/temp")
 OUTPUT_TOPICS = ("/tlm/small", "/tlm/medium", "/tlm/large", "/fault", "/diag")
 TRUTH_TOPICS = ("/truth/attitude", "/truth/params", "/truth/siru_time")
+AUDIT_TOPICS = ("/cmd_log",)  # the node's audit trail (docs/security.md), recorded by radical record
 SCENARIO_METADATA = "radical.scenario"
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,

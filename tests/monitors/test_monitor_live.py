@@ -22,6 +22,7 @@ from tests.support.packets import large_packet
 ROOT = Path(__file__).resolve().parents[2]
 ALLOWED_RADICAL = {"radical_rt.contract.conventions", "radical_rt.contract.paper_table",
                    "radical_rt.contract.flags", "radical_rt.io.zconfig", "radical_rt.io.outpaths",
+                   "radical_rt.io.zauth",  # session security profiles (--auth), like zconfig
                    "radical_rt.io.archive", "radical_rt.contract.schemas",
                    "radical_rt", "radical_rt.__version__"}  # the package itself: its version
 ALLOWED_REPLAYER: set[str] = set()  # the archive layer is radical_rt.io.archive

@@ -195,3 +195,43 @@ def test_node_without_a_profile_says_it_is_unauthenticated(caplog):
     transport.close()
     assert sa is None and listen == [ep]
     assert any("UNAUTHENTICATED" in r.getMessage() and ep in r.getMessage() for r in caplog.records)
+
+
+def test_the_audit_trail_is_recorded_as_a_cmd_log_channel(tcp_profile, tmp_path, capsys):
+    import threading
+
+    import zenoh
+
+    from radical_rt.io import zauth
+    from radical_rt.io.archive import ArchiveReader
+    from replayer.recorder import record
+    from replayer.sessions import tool_config
+
+    sn = Secured(tcp_profile)
+    try:
+        sa = zauth.session_auth(str(tcp_profile.directory), "operator", "operator")
+        cfg, _, _ = tool_config(None, None, "record", auth=sa)
+        session = zenoh.open(cfg)
+        stop, ready = threading.Event(), threading.Event()
+        out = tmp_path / "rec.mcap"
+        res: dict = {}
+        th = threading.Thread(target=lambda: res.update(record(
+            out, V, session, topics=",".join(zauth.readable_topics("operator")),
+            stop_event=stop, ready_event=ready)))
+        th.start()
+        assert ready.wait(10)
+        time.sleep(0.3)
+        assert _cmd(capsys, "status", "--auth", str(tcp_profile.directory))[0] == 0
+        assert _cmd(capsys, "warm_start", "--auth", str(tcp_profile.directory))[0] == 1
+        wait_for(lambda: sn.node.audit.summary(V)["refused"] == 1, 5, what="the audit")
+        time.sleep(0.5)
+        stop.set()
+        th.join(20)
+        session.close()
+        with ArchiveReader(out) as r:
+            logs = [m for topic, _, m in r.iter_messages() if topic == "/cmd_log"]
+            assert "/cmd_log" in r.schemas
+        assert [(m["user"], m["cmd"], m["ok"]) for m in logs] == [
+            ("monitor", "status", True), ("monitor", "warm_start", False)]
+    finally:
+        sn.close()
