@@ -235,3 +235,43 @@ def test_the_audit_trail_is_recorded_as_a_cmd_log_channel(tcp_profile, tmp_path,
             ("monitor", "status", True), ("monitor", "warm_start", False)]
     finally:
         sn.close()
+
+
+def test_replay_as_sensor_and_a_monitor_dashboard_under_a_profile(tcp_profile, archives, capsys):
+    from monitors.live import LatestStore, ZenohSource
+    from radical_rt.io import zauth
+
+    sn = Secured(tcp_profile)
+    store = LatestStore()
+    source = ZenohSource(store, V, auth=zauth.session_auth(str(tcp_profile.directory), None,
+                                                          "monitor")).start()
+    try:
+        rc = radical_main(["replay", str(archives["a60"]), "--vehicle", V, "--fast", "--auth",
+                           str(tcp_profile.directory), "--wait-node", "10", "--linger", "0.5",
+                           "--no-progress", "--end", "20"])
+        capsys.readouterr()
+        assert rc == 0
+        n_sent = sum(1 for _, ns, _ in input_messages(archives["a60"])
+                     if ns - input_messages(archives["a60"])[0][1] < 20e9)
+        assert n_sent > 100
+        wait_for(lambda: sum(sn.received().values()) >= n_sent - 5, 20, what="the replayed inputs")
+        wait_for(lambda: store.latest(V, "diag").msg is not None, 20, what="diag at the monitor")
+        assert store.latest(V, "diag").msg["node"]["security"]["auth"] == "usrpwd"
+        seen: list[int] = []
+
+        def settled() -> bool:  # no input arrived for 1 s
+            seen.append(sum(sn.received().values()))
+            return len(seen) > 10 and seen[-1] == seen[-11]
+        wait_for(settled, 30, 0.1, "the replayed inputs to settle")
+        before = seen[-1]
+        # a replayer that names the monitor role is not let in to publish
+        rc = radical_main(["replay", str(archives["a60"]), "--vehicle", V, "--fast", "--auth",
+                           str(tcp_profile.directory), "--role", "monitor", "--no-wait-node",
+                           "--linger", "0.5", "--no-progress", "--end", "5"])
+        out = capsys.readouterr()
+        assert "replayed" in out.out + out.err  # it did publish (to no one it may reach)
+        time.sleep(0.5)
+        assert sum(sn.received().values()) == before
+    finally:
+        source.close()
+        sn.close()
