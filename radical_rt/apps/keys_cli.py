@@ -1,10 +1,10 @@
 """Create a security profile for the live system (docs/security.md).
 
-    radical keys init DIR [--tls] [--port P] [--user ROLE:NAME ...] [--force]
+    radical keys init DIR [--no-tls] [--port P] [--user ROLE:NAME ...] [--force]
 
 Writes a ready profile into DIR: one user per role (``sensor``, ``node``, ``monitor``,
 ``operator``, each named after its role, plus every ``--user``) with random passwords in
-``users.txt``; with ``--tls`` a loopback certificate authority, the enforcement point's server
+``users.txt``; unless ``--no-tls``, a loopback certificate authority, the enforcement point's server
 certificate (127.0.0.1, localhost) and one client certificate per user (common name = user); the
 Zenoh configurations ``DIR/<role>.json5`` (one client per role, usable by any Zenoh client) and
 ``DIR/router.json5`` (the enforcement point: a zenohd router, or a node that listens); and
@@ -35,8 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="keys", metavar="{init}")
     init = sub.add_parser("init", help="write a new profile into DIR")
     init.add_argument("dir", metavar="DIR", help="profile directory (created)")
-    init.add_argument("--tls", action="store_true",
-                      help="TLS links with client certificates (endpoint tls/127.0.0.1:PORT)")
+    init.add_argument("--no-tls", dest="tls", action="store_false",
+                      help="plain TCP links (endpoint tcp/127.0.0.1:PORT): passwords only, no "
+                           "encryption (default: TLS with client certificates, tls/127.0.0.1:PORT)")
     init.add_argument("--port", type=int, default=zconfig.DEFAULT_PORT,
                       help=f"port of the enforcement point on 127.0.0.1 (default {zconfig.DEFAULT_PORT})")
     init.add_argument("--user", action="append", default=[], metavar="ROLE:NAME",
@@ -59,7 +60,7 @@ def parse_users(specs: list[str]) -> dict[str, str]:
     return users
 
 
-def init_profile(directory: str | os.PathLike, tls: bool = False, port: int = zconfig.DEFAULT_PORT,
+def init_profile(directory: str | os.PathLike, tls: bool = True, port: int = zconfig.DEFAULT_PORT,
                  users: dict[str, str] | None = None, force: bool = False) -> Profile:
     """Write a profile (see the module docstring) and return it loaded. ValueError if DIR holds
     a profile already (and not ``force``) or an argument is invalid."""

@@ -70,7 +70,7 @@ def _cmd(capsys, *argv) -> tuple[int, dict | None, str]:
 
 @pytest.fixture()
 def tcp_profile(tmp_path):
-    return init_profile(tmp_path / "auth", port=zconfig.free_port(),
+    return init_profile(tmp_path / "auth", tls=False, port=zconfig.free_port(),
                         users=parse_users(["operator:alice"]))
 
 

@@ -50,7 +50,7 @@ def _status(client: ZenohTransport, key: str = "radical/v1/cmd") -> list[dict]:
 def test_endpoints_and_option_errors(tmp_path, capsys):
     assert router_endpoints([], [], None) == ([ROUTER_ENDPOINT], [])
     prof = init_profile(tmp_path / "p", port=17100)
-    assert router_endpoints([], [], prof) == (["tcp/127.0.0.1:17100"], [])
+    assert router_endpoints([], [], prof) == (["tls/127.0.0.1:17100"], [])
     assert router_endpoints([], ["tcp/127.0.0.1:9"], None) == ([], ["tcp/127.0.0.1:9"])
     assert radical_main(["router", "--listen", "tcp/0.0.0.0:7447"]) == 2
     assert "not a loopback locator" in capsys.readouterr().err

@@ -36,7 +36,8 @@ def test_init_writes_a_complete_profile_with_private_secrets(tmp_path):
 def test_json5_files_are_zenoh_configs_of_the_role(tmp_path):
     import zenoh
 
-    prof = init_profile(tmp_path / "p", port=17002)
+    prof = init_profile(tmp_path / "p", port=17002)  # the default: TLS
+    assert prof.endpoint == "tls/127.0.0.1:17002"
     for role in zauth.ROLES:
         zenoh.Config.from_file(str(tmp_path / "p" / f"{role}.json5"))  # zenoh parses it
         doc = json.loads((tmp_path / "p" / f"{role}.json5").read_text().split("\n", 1)[1])
