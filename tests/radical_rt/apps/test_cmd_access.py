@@ -61,7 +61,7 @@ def test_authorize_matrix(profile):
 def test_monitor_reads_operator_writes_and_every_case_is_audited(secured):
     mn, logs = secured
     st = _ask(mn, "radical/v1/cmd/read/bob", cmd="status")
-    assert st["ok"] and st["node"]["security"]["auth"] == "usrpwd"
+    assert st["ok"] and st["node"]["security"]["auth"] == "usrpwd+mtls"
     before = mn.state()
     r = _ask(mn, "radical/v1/cmd/read/bob", cmd="set_params", params={"st_min_stars": 5})
     assert not r["ok"] and "changes state" in r["error"]
