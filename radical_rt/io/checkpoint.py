@@ -72,10 +72,7 @@ def write(path: str | os.PathLike[str], vehicles: dict[str, dict[str, Any]]) -> 
     of the directory); return the path written. CheckpointError (one line) if it fails; the
     previous checkpoint is then left as it was."""
     path = Path(path)
-    body = msgpack.packb({"written_unix": time.time(), "generator": f"radical-rt {__version__}",
-                          "vehicles": vehicles}, use_bin_type=True)
-    data = msgpack.packb({"schema": SCHEMA, "sha256": hashlib.sha256(body).hexdigest(),
-                          "body": body}, use_bin_type=True)
+    data = dumps(vehicles)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "wb") as f:
@@ -97,6 +94,15 @@ def write(path: str | os.PathLike[str], vehicles: dict[str, dict[str, Any]]) -> 
     return str(path)
 
 
+def dumps(vehicles: dict[str, dict[str, Any]]) -> bytes:
+    """A checkpoint of captured vehicle states as bytes (the file's content: schema, checksum,
+    body), e.g. to replicate it over Zenoh."""
+    body = msgpack.packb({"written_unix": time.time(), "generator": f"radical-rt {__version__}",
+                          "vehicles": vehicles}, use_bin_type=True)
+    return msgpack.packb({"schema": SCHEMA, "sha256": hashlib.sha256(body).hexdigest(),
+                          "body": body}, use_bin_type=True)
+
+
 def read(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Load a checkpoint file and verify its schema and checksum (the vehicles' fields are
     checked by :func:`restore`); CheckpointError with one clear line otherwise."""
@@ -107,6 +113,12 @@ def read(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise CheckpointError(f"checkpoint {path}: no such file") from None
     except OSError as exc:
         raise CheckpointError(f"checkpoint {path}: {exc.strerror or exc}") from None
+    return loads(data, str(path))
+
+
+def loads(data: bytes, path: str = "(bytes)") -> dict[str, Any]:
+    """:func:`dumps`' bytes back to the checkpoint document, schema and checksum verified
+    (``path`` names the source in errors); CheckpointError with one clear line otherwise."""
     if len(data) > MAX_BYTES:
         raise CheckpointError(f"checkpoint {path}: larger than {MAX_BYTES} bytes")
     try:

@@ -244,14 +244,18 @@ class InMemoryTransport:
         replies: list[bytes] = []
         for d in self.bus.find("qbl", key):
             if d.worker is None:
-                replies.append(bytes(d.fn(key, bytes(payload))))
+                r = d.fn(key, bytes(payload))
+                if r is not None:  # None: the queryable does not reply
+                    replies.append(bytes(r))
                 continue
             done = threading.Event()
             box: list[bytes] = []
 
             def call(d: _Decl = d, box: list[bytes] = box, done: threading.Event = done) -> None:
                 try:
-                    box.append(bytes(d.fn(key, bytes(payload))))
+                    r = d.fn(key, bytes(payload))
+                    if r is not None:
+                        box.append(bytes(r))
                 finally:
                     done.set()
 

@@ -12,7 +12,8 @@ The node only needs five things from a middleware, all with raw ``bytes`` payloa
   congestion control, for data that must not be lost; otherwise DROP; ``remote_only``: not
   delivered to this transport's own subscribers and inboxes);
 * ``queryable(key, handler, keyed=False)``: ``handler(payload) -> reply bytes`` answers queries on
-  a key expression (``keyed=True``: ``handler(query_key, payload)``, the query's own key);
+  a key expression (``keyed=True``: ``handler(query_key, payload)``, the query's own key; a
+  handler that returns None sends no reply);
 * ``liveliness_token(key)``: a token visible while the session lives;
 * ``close()``.
 
@@ -36,8 +37,8 @@ from collections.abc import Callable
 from typing import Protocol
 
 SampleCallback = Callable[[str, bytes], None]
-QueryHandler = Callable[[bytes], bytes]
-KeyedQueryHandler = Callable[[str, bytes], bytes]
+QueryHandler = Callable[[bytes], bytes | None]
+KeyedQueryHandler = Callable[[str, bytes], bytes | None]
 
 
 class TransportError(RuntimeError):

@@ -108,7 +108,8 @@ class ZenohTransport:
                 try:
                     payload = q.payload.to_bytes() if q.payload is not None else b""
                     reply = handler(str(q.key_expr), payload) if keyed else handler(payload)
-                    q.reply(q.key_expr, reply, encoding=self.zenoh.Encoding(self.ENCODING))
+                    if reply is not None:  # None: nothing to say (no reply)
+                        q.reply(q.key_expr, reply, encoding=self.zenoh.Encoding(self.ENCODING))
                 except Exception as exc:  # never leave a getter waiting for its timeout
                     log.exception("query handler failed")
                     q.reply_err(str(exc).encode())
