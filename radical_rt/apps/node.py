@@ -72,7 +72,8 @@ class FilterNode:
 
     processors: vehicle name → StreamProcessor (see :func:`build_processors`). checkpoint_path:
     where periodic (every ``checkpoint_every_s`` of wall time), on-command and final checkpoints
-    go (None: no checkpoints). queue_size: capacity of the input FIFO (queue_wait_s: how long a
+    go (None: no checkpoints; a callable ``sink(states) -> where`` takes the captured states
+    instead of a file, e.g. a fleet's replica). queue_size: capacity of the input FIFO (queue_wait_s: how long a
     full in-memory FIFO makes its publisher wait before dropping). block_outputs: BLOCK congestion
     control for every output (default: only ``fault``; telemetry and diag use DROP so a stuck
     consumer cannot stall the filter). rt_priority: run the filter loop thread with the
@@ -95,7 +96,7 @@ class FilterNode:
     CHECKPOINT_RETRY_S = 5.0  # a failed periodic checkpoint is retried this much later [s]
 
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
-                 checkpoint_path: str | None = None, checkpoint_every_s: float = 60.0,
+                 checkpoint_path: Any = None, checkpoint_every_s: float = 60.0,
                  queue_size: int = 4096, queue_wait_s: float = 1.0, block_outputs: bool = False,
                  command_timeout_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic,
                  timing: LoopTiming | None = None, rt_priority: int | None = None,
@@ -142,6 +143,7 @@ class FilterNode:
         self.loop_error: BaseException | None = None
         self.running = False
         self.timing = timing  # per-message timing records (perf), or None
+        self.fleet_info: dict[str, Any] | None = None  # set by a fleet worker (diag, status)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -374,8 +376,9 @@ class FilterNode:
         if not self.checkpoint_path:
             raise commands.CommandError("no checkpoint path: start the node with --checkpoint PATH")
         try:
-            path = ckpt.write(self.checkpoint_path,
-                              {name: ckpt.capture(v.sp, name) for name, v in self.vehicles.items()})
+            states = {name: ckpt.capture(v.sp, name) for name, v in self.vehicles.items()}
+            sink = self.checkpoint_path  # a file, or a callable (a fleet's replica) → where
+            path = sink(states) if callable(sink) else ckpt.write(sink, states)
         except ckpt.CheckpointError as exc:
             raise commands.CommandError(str(exc)) from None
         self.checkpoints_written += 1

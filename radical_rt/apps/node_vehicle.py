@@ -104,10 +104,12 @@ class Vehicle:
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "commands": n.audit.summary(self.name),
                 "security": n.auth.describe() if n.auth is not None else {"auth": "none"},
+                "fleet": n.fleet_info,
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
                 "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,
-                "checkpoint": n.checkpoint_path, "checkpoints_written": n.checkpoints_written,
+                "checkpoint": str(n.checkpoint_path) if n.checkpoint_path else None,
+                "checkpoints_written": n.checkpoints_written,
                 "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
                 "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
                 if n.last_checkpoint_mono is not None else None}

@@ -56,7 +56,8 @@ class _Decl:
     def __init__(self, bus: InMemoryBus, kind: str, key: str, fn: Any, owner: Any = None) -> None:
         self.bus, self.kind, self.key, self.fn = bus, kind, key, fn
         self.owner = owner  # set for remote-only subscribers: samples from it are not delivered
-        self.worker = _Worker(f"inmem-{kind}-{key}") if bus.threaded and kind != "token" else None
+        self.worker = (_Worker(f"inmem-{kind}-{key}") if bus.threaded and kind not in ("token", "lsub")
+                       else None)
 
     def undeclare(self) -> None:
         self.bus.remove(self)
@@ -158,18 +159,28 @@ class InMemoryBus:
         self._decls: list[_Decl] = []
 
     def add(self, d: _Decl) -> _Decl:
-        """Register a declaration (subscriber, queryable or token)."""
+        """Register a declaration (subscriber, queryable, token or liveliness subscriber)."""
         with self._lock:
             self._decls.append(d)
+        if d.kind == "token":
+            self._tell(d.key, True)
         return d
 
     def remove(self, d: _Decl) -> None:
         """Forget a declaration and stop its delivery thread."""
         with self._lock:
-            if d in self._decls:
+            found = d in self._decls
+            if found:
                 self._decls.remove(d)
         if d.worker:
             d.worker.stop()
+        if found and d.kind == "token":
+            self._tell(d.key, False)
+
+    def _tell(self, token: str, alive: bool) -> None:
+        """Liveliness subscribers learn that a token appeared or went (in the caller's thread)."""
+        for d in self.find("lsub", token):
+            d.fn(token, alive)
 
     def find(self, kind: str, key: str) -> list[_Decl]:
         """The declarations of one kind whose key expression matches ``key``."""
@@ -225,6 +236,14 @@ class InMemoryTransport:
 
     def liveliness_token(self, key: str) -> _Decl:
         return self._declare("token", key, None)
+
+    def liveliness_subscribe(self, key: str, callback: Any) -> _Decl:
+        """``callback(token_key, alive)`` for every token matching ``key``: those alive now
+        (history), then each one that appears or goes."""
+        d = self._declare("lsub", key, callback)
+        for tok in self.bus.alive(key):
+            callback(tok, True)
+        return d
 
     def put(self, key: str, payload: bytes, block: bool = False, remote_only: bool = False) -> None:
         if self.closed:

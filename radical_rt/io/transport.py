@@ -15,6 +15,8 @@ The node only needs five things from a middleware, all with raw ``bytes`` payloa
   a key expression (``keyed=True``: ``handler(query_key, payload)``, the query's own key; a
   handler that returns None sends no reply);
 * ``liveliness_token(key)``: a token visible while the session lives;
+* ``liveliness_subscribe(key, callback)``: ``callback(token_key, alive)`` for the tokens matching
+  ``key`` alive now, then for each that appears or goes (fleets: who is alive, who owns what);
 * ``close()``.
 
 Clients (tests, tools) also use ``get(key, payload, timeout) -> [reply bytes]``. Every declaration
@@ -83,6 +85,8 @@ class Transport(Protocol):
                   keyed: bool = False) -> Handle: ...
 
     def liveliness_token(self, key: str) -> Handle: ...
+
+    def liveliness_subscribe(self, key: str, callback: Callable[[str, bool], None]) -> Handle: ...
 
     def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]: ...
 

@@ -119,6 +119,21 @@ class ZenohTransport:
     def liveliness_token(self, key: str) -> _ZHandle:
         return self._keep(self.session.liveliness().declare_token(key))
 
+    def liveliness_subscribe(self, key: str, callback: Any) -> _ZHandle:
+        """``callback(token_key, alive)`` for every token matching ``key``: those alive now
+        (history), then each one that appears or goes (a session that dies: after its lease)."""
+        put = self.zenoh.SampleKind.PUT
+
+        def on_token(s: Any) -> None:
+            callback(str(s.key_expr), s.kind == put)
+
+        return self._keep(self.session.liveliness().declare_subscriber(key, on_token, history=True))
+
+    def connected(self) -> bool:
+        """Whether the session has a link to a router or a peer now."""
+        info = self.session.info
+        return bool(list(info.routers_zid())) or bool(list(info.peers_zid()))
+
     MATCH_WAIT_S = 2.0  # longest wait for a matching queryable before a get
 
     def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:

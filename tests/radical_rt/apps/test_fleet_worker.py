@@ -1,0 +1,113 @@
+"""Fleet workers on an in-memory bus (radical_rt.apps.fleet_worker): every vehicle served by
+exactly one worker, a joiner takes its share from the final checkpoints of the old owners, a
+crashed worker's vehicles are taken over from the replica with the loss reported, and never two
+ownership tokens for one vehicle at once."""
+
+from __future__ import annotations
+
+import threading
+
+import msgpack
+import pytest
+
+from radical_rt.apps.fleet_worker import FleetWorker
+from radical_rt.apps.node_setup import build_processors
+from radical_rt.fleet.ownership import assign
+from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
+from tests.support.node import input_messages, wait_for
+
+VEHICLES = ["v1", "v2", "v3", "v4", "v5"]
+
+
+def _make(name: str):
+    return build_processors([name])[name]
+
+
+class OwnerWatch:
+    """Tracks the ownership tokens: the most owners any vehicle ever had at once."""
+
+    def __init__(self, t) -> None:
+        self.lock = threading.Lock()
+        self.now: dict[str, set[str]] = {}
+        self.most = 0
+        t.liveliness_subscribe("radical-fleet/f1/owner/*/*", self._on)
+
+    def _on(self, key: str, alive: bool) -> None:
+        v, w = key.split("/")[-2:]
+        with self.lock:
+            s = self.now.setdefault(v, set())
+            (s.add if alive else s.discard)(w)
+            self.most = max(self.most, len(s))
+
+
+@pytest.fixture()
+def fleet():
+    bus = InMemoryBus()
+    client = InMemoryTransport(bus)
+    watch = OwnerWatch(client)
+    workers: list[FleetWorker] = []
+
+    def add(wid: str) -> FleetWorker:
+        w = FleetWorker(InMemoryTransport(bus), "f1", VEHICLES, _make, worker_id=wid,
+                        checkpoint_every_s=0.2).start()
+        workers.append(w)
+        return w
+
+    yield bus, client, watch, add
+    for w in workers:
+        w.stop()
+
+
+def _served(workers) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for w in workers:
+        for v in w.nodes:
+            out.setdefault(v, []).append(w.id)
+    return out
+
+
+def _settled(workers) -> bool:
+    live = {w.id for w in workers}
+    want = assign(VEHICLES, live)
+    return _served(workers) == {v: [want[v]] for v in VEHICLES}
+
+
+def _status(client, v: str) -> dict:
+    [r] = client.get(f"radical/{v}/cmd", msgpack.packb({"cmd": "status"}), timeout=5)
+    return msgpack.unpackb(r, raw=False, strict_map_key=False)
+
+
+def test_join_and_crash(fleet, archives):
+    bus, client, watch, add = fleet
+    a, b = add("w-a"), add("w-b")
+    wait_for(lambda: _settled([a, b]), 20, what="two workers to share the roster")
+    msgs = input_messages(archives["a60"])[:300]
+    for topic, _, data in msgs:
+        for v in VEHICLES:
+            client.put(f"radical/{v}/{topic}", data, block=True)
+    for w in (a, b):
+        for node, _ in w.nodes.values():
+            assert node.wait_idle(30)
+    t_before = {v: _status(client, v)["t"] for v in VEHICLES}
+    assert all(t > 0 for t in t_before.values())
+    wait_for(lambda: all(a.replica.latest(v) and b.replica.latest(v) for v in VEHICLES), 10,
+             what="replicas of every vehicle on both workers")
+
+    c = add("w-c")  # a join: the vehicles c now scores highest on move from their old owner
+    wait_for(lambda: _settled([a, b, c]), 20, what="the join to settle")
+    moved = [t for t in c.takeovers]
+    assert moved and all(t["source"] == "replica" and t["replica_worker"] in ("w-a", "w-b")
+                         for t in moved)
+    for t in moved:  # from the old owner's final checkpoint: the state it had when it let go
+        assert _status(client, t["vehicle"])["t"] == pytest.approx(t_before[t["vehicle"]])
+
+    b_vehicles = sorted(b.nodes)
+    b.t.close()  # a crash: b's tokens go with its session, nothing is handed over
+    wait_for(lambda: _settled([a, c]), 20, what="the survivors to take b's vehicles")
+    taken = {t["vehicle"]: t for w in (a, c) for t in w.takeovers if t["vehicle"] in b_vehicles
+             and t["taken_unix"] > 0 and t["replica_worker"] == "w-b"}
+    assert set(taken) == set(b_vehicles)
+    for v, t in taken.items():
+        st = _status(client, v)
+        assert st["node"]["fleet"]["source"] == "replica" and st["node"]["fleet"]["lost_s"] >= 0
+    assert watch.most == 1  # never two owners of one vehicle at once
