@@ -27,7 +27,7 @@ GROUP = "radical.commands"
 #: subcommand -> module, for the commands of the engine package itself
 BUILTIN = {"process": "radical_rt.apps.batch", "node": "radical_rt.apps.node_cli",
            "cmd": "radical_rt.apps.cmd_cli", "keys": "radical_rt.apps.keys_cli",
-           "router": "radical_rt.apps.router_cli"}
+           "router": "radical_rt.apps.router_cli", "fleet": "radical_rt.apps.fleet_cli"}
 #: the commands CONTRACT §5 requires of `radical`, in the order `radical --help` lists them
 #: (the other subcommands follow in entry-point order)
 CONTRACT_COMMANDS = ("synth", "process", "node", "replay", "record", "monitor", "report", "bench")

@@ -94,6 +94,7 @@ class FleetWorker:
         self._lock = threading.Lock()
         self._members: set[str] = set()
         self._owners: dict[str, set[str]] = {}
+        self._last_owner: dict[str, str] = {}  # the last other worker seen owning each vehicle
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._decls: list[Any] = []
@@ -139,6 +140,8 @@ class FleetWorker:
         with self._lock:
             held = self._owners.setdefault(vehicle, set())
             (held.add if alive else held.discard)(wid)
+            if alive and wid != self.id:
+                self._last_owner[vehicle] = wid
         self._wake.set()
 
     def live_workers(self) -> set[str]:
@@ -211,6 +214,10 @@ class FleetWorker:
                 ckpt.restore(sp, rep.state(), new_stream=True)
                 info.update(source="replica", replica_worker=rep.worker, replica_seq=rep.seq,
                             lost_s=max(0.0, time.time() - rep.t_wall))
+                if not rep.final or rep.worker != self._last_owner.get(vehicle, rep.worker):
+                    # not handed over (its owner crashed): the input since then is lost
+                    sp.note_takeover_loss(info["lost_s"])
+                    info["loss_flagged"] = True
             except ckpt.CheckpointError as exc:
                 log.error("fleet %s: replica of %s unusable (%s): cold start", self.fleet,
                           vehicle, exc)
@@ -225,11 +232,16 @@ class FleetWorker:
                  f", {info['lost_s']:.1f} s since the replica" if info["lost_s"] is not None else "")
 
     def _release(self, vehicle: str, publish: bool = True) -> None:
+        """Stop serving ``vehicle``: the node stops (what is queued is fed), the final checkpoint
+        goes to the replica, then the ownership token goes (the next owner waits for that)."""
         node, token = self.nodes.pop(vehicle)
-        try:
-            node.stop(drain_s=0.5, final_checkpoint=publish)
-        except Exception as exc:  # the final checkpoint failed: the periodic one stands
-            log.error("fleet %s: final checkpoint of %s failed: %s", self.fleet, vehicle, exc)
+        node.stop(drain_s=0.5, final_checkpoint=False)
+        if publish and self.replica is not None:
+            try:
+                self.replica.publish(vehicle, ckpt.capture(node.vehicles[vehicle].sp, vehicle),
+                                     final=True)
+            except Exception as exc:  # the final checkpoint failed: the periodic one stands
+                log.error("fleet %s: final checkpoint of %s failed: %s", self.fleet, vehicle, exc)
         token.undeclare()
         log.info("fleet %s: %s let go by %s", self.fleet, vehicle, self.id)
 

@@ -32,8 +32,14 @@ HELP = "run the streaming filter node over Zenoh"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--vehicle", action="append", required=True, metavar="V",
-                   help="vehicle name [a-z0-9_-]+ (repeat to serve several vehicles)")
+    p.add_argument("--vehicle", action="append", metavar="V",
+                   help="vehicle name [a-z0-9_-]+ (repeat to serve several vehicles; with "
+                        "--fleet: the roster)")
+    p.add_argument("--fleet", metavar="NAME", help="run fleet workers of fleet NAME that share "
+                   "the roster among themselves (needs --connect to a router; docs/fleet.md)")
+    p.add_argument("--roster", metavar="FILE", help="with --fleet: vehicle names, one per line")
+    p.add_argument("--workers", type=int, metavar="N", help="with --fleet: worker processes "
+                   "(default: one per CPU core)")
     p.add_argument("--listen", metavar="EP", help="listen on this loopback endpoint "
                    f"(tcp/127.0.0.1:PORT; default {zconfig.DEFAULT_ENDPOINT} if no --connect)")
     p.add_argument("--connect", metavar="EP", help="connect to a router/peer at this endpoint")
@@ -58,8 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "warm start); default: continue the checkpointed stream")
     p.add_argument("--checkpoint", metavar="PATH", type=output_file,
                    help="checkpoint file (written periodically, on command and at shutdown)")
-    p.add_argument("--checkpoint-every", type=float, default=60.0, metavar="S",
-                   help="seconds of wall time between checkpoints (default 60)")
+    p.add_argument("--checkpoint-every", type=float, default=None, metavar="S",
+                   help="seconds of wall time between checkpoints (default 60; fleet: 10)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--queue-size", type=int, default=4096, metavar="N",
                    help="input FIFO capacity in samples (default 4096; full: back-pressure)")
@@ -99,8 +105,14 @@ def _check(args: argparse.Namespace) -> str | None:
                 zconfig.check_endpoint(ep)
             except zconfig.ZenohConfigError as exc:
                 return str(exc)
-    if args.checkpoint_every <= 0:
+    if args.checkpoint_every is not None and args.checkpoint_every <= 0:
         return "--checkpoint-every must be > 0"
+    if args.fleet is None:
+        if not args.vehicle:
+            return "give at least one --vehicle V (or --fleet NAME with a roster)"
+        for opt, given in (("--roster", args.roster), ("--workers", args.workers)):
+            if given is not None:
+                return f"{opt} needs --fleet NAME"
     if args.duration is not None and args.duration <= 0:
         return "--duration must be > 0"
     if args.queue_size < 1:
@@ -146,6 +158,11 @@ def run(args: argparse.Namespace) -> int:
     err = _check(args)
     if err:
         return _fail(err)
+    if args.fleet is not None:
+        from radical_rt.apps.fleet_cli import run_fleet
+
+        return run_fleet(args)
+    args.checkpoint_every = args.checkpoint_every or 60.0
     from radical_rt.apps.node import FilterNode, NodeStartError
     from radical_rt.apps.node_setup import build_processors, warm_up
     from radical_rt.apps.node_timing import LoopTiming

@@ -8,7 +8,7 @@ newest one in memory, so a survivor that takes a vehicle over already holds its 
 that joins later asks the others (a queryable on the same keys answers with what it holds).
 
 The payload is a msgpack envelope ``{"v": 1, "fleet", "vehicle", "worker", "seq", "t_wall",
-"ckpt"}`` where ``ckpt`` is :func:`radical_rt.io.checkpoint.dumps` of that one vehicle (schema
+"final", "ckpt"}`` (``final``: written as its owner let the vehicle go) where ``ckpt`` is :func:`radical_rt.io.checkpoint.dumps` of that one vehicle (schema
 and SHA-256 checked on receipt). Of two checkpoints of a vehicle the one with the later
 ``(t_wall, worker, seq)`` is kept. Malformed or damaged envelopes are counted and ignored.
 """
@@ -43,6 +43,7 @@ class Replica:
     seq: int
     t_wall: float
     data: bytes  # checkpoint.dumps({vehicle: state})
+    final: bool = False  # written when its owner let the vehicle go (nothing after it was lost)
 
     def order(self) -> tuple[float, str, int]:
         return (self.t_wall, self.worker, self.seq)
@@ -69,12 +70,13 @@ class CheckpointReplica:
         self._decls = [transport.subscribe(self.key + "*", self._on_sample, remote_only=True),
                        transport.queryable(self.key + "*", self._on_query, keyed=True)]
 
-    def publish(self, vehicle: str, state: dict[str, Any]) -> Replica:
-        """Hold and publish a new checkpoint of ``vehicle`` (``checkpoint.capture`` output)."""
+    def publish(self, vehicle: str, state: dict[str, Any], final: bool = False) -> Replica:
+        """Hold and publish a new checkpoint of ``vehicle`` (``checkpoint.capture`` output);
+        ``final``: the last one before this worker lets the vehicle go."""
         with self._lock:
             self._seq += 1
             rep = Replica(vehicle, self.worker, self._seq, time.time(),
-                          ckpt.dumps({vehicle: state}))
+                          ckpt.dumps({vehicle: state}), final)
         self._keep(rep)
         self.t.put(self.key + vehicle, self._envelope(rep), block=True, remote_only=True)
         return rep
@@ -110,7 +112,7 @@ class CheckpointReplica:
     def _envelope(self, rep: Replica) -> bytes:
         return msgpack.packb({"v": 1, "fleet": self.fleet, "vehicle": rep.vehicle,
                               "worker": rep.worker, "seq": rep.seq, "t_wall": rep.t_wall,
-                              "ckpt": rep.data}, use_bin_type=True)
+                              "final": rep.final, "ckpt": rep.data}, use_bin_type=True)
 
     def _keep(self, rep: Replica) -> None:
         with self._lock:
@@ -122,7 +124,7 @@ class CheckpointReplica:
         try:
             m = msgpack.unpackb(data, raw=False)
             rep = Replica(str(m["vehicle"]), str(m["worker"]), int(m["seq"]),
-                          float(m["t_wall"]), bytes(m["ckpt"]))
+                          float(m["t_wall"]), bytes(m["ckpt"]), m.get("final") is True)
             if m.get("fleet") != self.fleet:
                 raise ValueError(f"fleet {m.get('fleet')!r}")
             rep.state()  # schema and checksum, before it may replace a good one

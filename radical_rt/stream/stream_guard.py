@@ -152,6 +152,11 @@ class StreamGuards:
         self._input_gap.set()
         self._guard_live = True
 
+    def note_takeover_loss(self, dt: float) -> None:
+        """A fleet worker resumed this vehicle from a checkpoint ``dt`` s of wall time old (the
+        input since then went with the crashed owner): an input gap (INPUT_GAP, counted)."""
+        self._note_input_gap(max(0.0, float(dt)))
+
     def note_reported_loss(self, n: int) -> None:
         """Messages a publisher reported sent that never arrived (end-of-stream marker)."""
         if n > 0:

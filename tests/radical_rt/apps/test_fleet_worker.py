@@ -97,7 +97,7 @@ def test_join_and_crash(fleet, archives):
     wait_for(lambda: _settled([a, b, c]), 20, what="the join to settle")
     moved = [t for t in c.takeovers]
     assert moved and all(t["source"] == "replica" and t["replica_worker"] in ("w-a", "w-b")
-                         for t in moved)
+                         and not t.get("loss_flagged") for t in moved)  # handed over: no loss
     for t in moved:  # from the old owner's final checkpoint: the state it had when it let go
         assert _status(client, t["vehicle"])["t"] == pytest.approx(t_before[t["vehicle"]])
 
@@ -110,4 +110,5 @@ def test_join_and_crash(fleet, archives):
     for v, t in taken.items():
         st = _status(client, v)
         assert st["node"]["fleet"]["source"] == "replica" and st["node"]["fleet"]["lost_s"] >= 0
+        assert t["loss_flagged"] and st["counters"]["input_gaps"] == 1  # the crash's loss
     assert watch.most == 1  # never two owners of one vehicle at once
