@@ -1,0 +1,141 @@
+"""A fleet over a real router on loopback: two worker processes share three vehicles, one is
+killed with SIGKILL mid-stream, the survivor takes its vehicles over from the replica (the loss
+counted and flagged), every vehicle keeps being served, the final estimates lie within 3σ of the
+truth, and no vehicle ever has two owners (issue #19)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+
+from radical_rt.io import zconfig
+from radical_rt.io.archive import ArchiveReader
+from radical_rt.io.zenoh_transport import ZenohTransport
+from tests.support.node import input_messages, wait_for
+
+pytestmark = pytest.mark.zenoh
+VEHICLES = ["va", "vb", "vc"]
+RATE = 3.0  # archive seconds per wall second
+
+
+def _spawn(*argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", *argv],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_line(p: subprocess.Popen, needle: str, timeout: float = 120.0) -> None:
+    assert p.stderr is not None
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        line = p.stderr.readline()
+        if needle in line:
+            threading.Thread(target=p.stderr.read, daemon=True).start()  # keep the pipe drained
+            return
+        if not line and p.poll() is not None:
+            break
+    raise AssertionError(f"no {needle!r} from {p.args}")
+
+
+def _owner_of(client: ZenohTransport, v: str) -> str | None:
+    replies = client.get(f"radical/{v}/cmd", msgpack.packb({"cmd": "status"}), timeout=2.0)
+    if len(replies) != 1:
+        return None
+    st = msgpack.unpackb(replies[0], raw=False, strict_map_key=False)
+    return (st["node"].get("fleet") or {}).get("worker")
+
+
+def test_kill_one_worker_mid_stream(archives):
+    ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
+    router = _spawn("router", "--listen", ep)
+    _wait_line(router, "ready", 60)
+    worker_args = ["node", "--fleet", "f1", "--connect", ep, "--workers", "1",
+                   "--checkpoint-every", "2", "--log-level", "info",
+                   *[a for v in VEHICLES for a in ("--vehicle", v)]]
+    workers = [_spawn(*worker_args) for _ in range(2)]
+    client = ZenohTransport("client", connect=[ep])
+    diag: list[tuple[str, str]] = []
+    owners_now: dict[str, set[str]] = {}
+    most = [0]
+    lock = threading.Lock()
+
+    def on_diag(key: str, data: bytes) -> None:
+        m = msgpack.unpackb(data, raw=False, strict_map_key=False)
+        with lock:
+            diag.append((key.split("/")[1], (m["node"].get("fleet") or {}).get("worker")))
+
+    def on_owner(key: str, alive: bool) -> None:
+        v, w = key.split("/")[-2:]
+        with lock:
+            s = owners_now.setdefault(v, set())
+            (s.add if alive else s.discard)(w)
+            most[0] = max(most[0], len(s))
+
+    try:
+        for w in workers:
+            _wait_line(w, "ready", 180)
+        client.subscribe("radical/*/diag", on_diag)
+        client.liveliness_subscribe("radical-fleet/f1/owner/*/*", on_owner)
+        wait_for(lambda: all(_owner_of(client, v) for v in VEHICLES), 30, 0.2,
+                 "every vehicle to be served")
+        owners = {v: _owner_of(client, v) for v in VEHICLES}
+        assert len(set(owners.values())) == 2, owners  # both workers serve (3 vehicles, 2 workers)
+
+        msgs = input_messages(archives["a60"])
+        t0, ns0 = time.monotonic(), msgs[0][1]
+        victim_id = max(set(owners.values()), key=lambda w: sum(o == w for o in owners.values()))
+        victim_pid = int(victim_id.split("-")[-2])
+        killed_at = None
+        for topic, ns, data in msgs:
+            delay = t0 + (ns - ns0) / 1e9 / RATE - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            if killed_at is None and (ns - ns0) / 1e9 > 24.0:
+                os.kill(victim_pid, signal.SIGKILL)
+                killed_at = time.monotonic()
+            for v in VEHICLES:
+                client.put(f"radical/{v}/{topic}", data, block=True)
+        assert killed_at is not None
+        survivor = next(w for w in set(owners.values()) if w != victim_id)
+        wait_for(lambda: all(_owner_of(client, v) == survivor for v in VEHICLES), 15, 0.2,
+                 "the survivor to serve every vehicle")
+
+        moved = [v for v in VEHICLES if owners[v] == victim_id]
+        with ArchiveReader(archives["a60"]) as r:
+            truth = [m for _t, _ns, m in r.iter_messages("/truth/params")][-1]
+        for v in VEHICLES:
+            [raw] = client.get(f"radical/{v}/cmd", msgpack.packb({"cmd": "status"}), timeout=5)
+            st = msgpack.unpackb(raw, raw=False, strict_map_key=False)
+            fleet = st["node"]["fleet"]
+            if v in moved:  # taken over: from the victim's replica, the loss counted and flagged
+                assert fleet["source"] == "replica" and fleet["replica_worker"] == victim_id
+                assert fleet["loss_flagged"] and 0 <= fleet["lost_s"] < 10
+                assert st["counters"]["input_gaps"] >= 1
+            for g in ("b", "lam", "mu", "du", "dv", "phi2"):
+                err = np.abs(np.array(st["est"][g]) - np.array(truth[g]))
+                assert np.all(err <= 3 * np.array(st["sigma"][g]) + 1e-12), (v, g)
+        with lock:
+            assert most[0] == 1, owners_now  # never two owners of a vehicle at once
+            runs: dict[str, list[str]] = {}
+            for v, w in diag:
+                if not runs.setdefault(v, []) or runs[v][-1] != w:
+                    runs[v].append(w)
+        for v in VEHICLES:  # diag from one worker, then (after the kill) only from the survivor
+            assert runs[v] == ([victim_id, survivor] if v in moved else [survivor]), runs[v]
+    finally:
+        client.close()
+        for p in [*workers, router]:
+            if p.poll() is None:
+                p.terminate()
+        for p in [*workers, router]:
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
