@@ -17,9 +17,10 @@ the access-control list (default deny) allows each user exactly what its role ne
 role         may
 ===========  ===========================================================================
 sensor       put inputs ``radical/*/{siru,st1,st2,temp,eos}``; see liveliness tokens
-node         everything under ``radical/**`` (subscribe inputs, publish outputs, serve commands)
+node         everything under ``radical/**`` and ``radical-fleet/**`` (subscribe inputs, publish
+             outputs, serve commands; a fleet's membership, ownership and checkpoints)
 monitor      subscribe outputs ``radical/*/{tlm/**,fault,diag,cmd_log}``; read-only commands on
-             ``radical/*/cmd/read/<user>``; see liveliness tokens
+             ``radical/*/cmd/read/<user>``; see liveliness tokens; ``radical fleet status``
 operator     what a monitor may, plus subscribe inputs and every command on
              ``radical/*/cmd/write/<user>``
 ===========  ===========================================================================
@@ -169,7 +170,10 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
     outputs = [f"radical/*/{t}" for t in OUTPUT_TOPICS]
     alive = ["radical/*/alive/**"]
     rules = [
-        _rule("node_all", ALL_MESSAGES, ["ingress", "egress"], ["radical/**"]),
+        _rule("node_all", ALL_MESSAGES, ["ingress", "egress"], ["radical/**", "radical-fleet/**"]),
+        _rule("fleet_status", ["query"], ["ingress"], ["radical-fleet/*/status/*"]),
+        _rule("fleet_status_out", ["reply", "declare_queryable"], ["egress"],
+              ["radical-fleet/*/status/*"]),
         _rule("inputs_put", ["put"], ["ingress"], inputs),
         # routes: a client only sends a put when it knows a matching subscriber, and the node
         # subscribes with wildcards (radical/<V>/*, radical/*/*): the declarations (key
@@ -186,9 +190,10 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
     role_rules = {"node": ["node_all"], "sensor": ["inputs_put", "routes", "alive_read",
                                                    "alive_read_out"],
                   "monitor": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
-                              "routes"],
+                              "routes", "fleet_status", "fleet_status_out"],
                   "operator": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
-                               "inputs_read", "inputs_read_out", "routes"]}
+                               "inputs_read", "inputs_read_out", "routes", "fleet_status",
+                               "fleet_status_out"]}
     subjects, policies = [], []
     for i, (user, role) in enumerate(sorted(users.items())):
         sid = f"u{i}_{user}"

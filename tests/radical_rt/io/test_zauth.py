@@ -78,15 +78,17 @@ def test_acl_grants_each_user_only_its_own_command_keys():
         return {k for rid in policy[by_user[user]] for k in rules[rid]["key_exprs"]
                 if message in rules[rid]["messages"] and flow in rules[rid]["flows"]}
 
-    assert keys("monitor", "query", "ingress") == {"radical/*/cmd/read/monitor"}
+    fleet_status = {"radical-fleet/*/status/*"}  # radical fleet status
+    assert keys("monitor", "query", "ingress") == {"radical/*/cmd/read/monitor", *fleet_status}
     assert keys("alice", "query", "ingress") == {"radical/*/cmd/read/alice",
-                                                 "radical/*/cmd/write/alice"}
+                                                 "radical/*/cmd/write/alice", *fleet_status}
     assert keys("sensor", "query", "ingress") == set()
     assert keys("sensor", "put", "ingress") == {f"radical/*/{t}" for t in zauth.INPUT_TOPICS}
     assert keys("monitor", "put", "ingress") == set() and keys("alice", "put", "ingress") == set()
     assert "radical/*/siru" not in keys("monitor", "put", "egress")  # monitors never see inputs
     assert "radical/*/siru" in keys("alice", "put", "egress")
-    assert keys("node", "put", "ingress") == {"radical/**"}
+    assert keys("node", "put", "ingress") == {"radical/**", "radical-fleet/**"}
+    assert keys("sensor", "put", "ingress").isdisjoint({"radical-fleet/**"})
     assert all("radical/*/cmd" not in keys(u, "query", "ingress") for u in by_user if u != "node")
 
 
