@@ -189,7 +189,8 @@ def run(args: argparse.Namespace) -> int:
     t = ZenohTransport("client", [], [args.connect],
                        extra=sa.settings(listening=False) if sa else None)
     try:
-        replies = t.get(f"radical-fleet/{args.fleet}/status/*", b"", timeout=args.timeout)
+        replies = t.get(f"radical-fleet/{args.fleet}/status/*", b"", timeout=args.timeout,
+                        every=True)
     finally:
         t.close()
     workers = sorted((msgpack.unpackb(r, raw=False) for r in replies), key=lambda w: w["worker"])

@@ -11,9 +11,10 @@ vehicle's token, exactly as a single node), plus an ownership token
 When the live workers change (a join, a clean leave, a crash seen through the lease), every
 worker recomputes the owners. A worker lets go of the vehicles it no longer owns (final
 checkpoint published, then its ownership token undeclared) and takes the vehicles it now owns
-once **no other worker holds an ownership token** for them: it declares its token (a claim),
-waits ``claim_settle_s`` and serves only if no rival claim with a higher rendezvous score
-appeared (so two workers that claimed at once, each before seeing the other, agree on one),
+once **no other worker serves or claims them**: it declares a claim token
+(``radical-fleet/F/claim/<V>/<id>``), waits ``claim_settle_s`` and takes the vehicle (ownership
+token first, then the node) only if no rival with a higher rendezvous score claims or serves it
+(so two workers that claimed at once, each before seeing the other, agree on one),
 from the newest replica (a new stream: warm start, clock phase forgotten) or
 cold if there is none. What a takeover lost (the wall time since that replica was written) is
 counted and reported in ``diag.node.fleet`` and ``status``. A worker that loses its link to
@@ -93,7 +94,8 @@ class FleetWorker:
         self.fenced = False  # no router: serving nothing until the link is back
         self._lock = threading.Lock()
         self._members: set[str] = set()
-        self._owners: dict[str, set[str]] = {}
+        self._owners: dict[str, set[str]] = {}  # vehicle → workers serving it (owner tokens)
+        self._claims: dict[str, set[str]] = {}  # vehicle → workers claiming it (claim tokens)
         self._last_owner: dict[str, str] = {}  # the last other worker seen owning each vehicle
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -106,6 +108,7 @@ class FleetWorker:
         self.replica = CheckpointReplica(self.t, self.fleet, self.id)
         self._decls.append(self.t.liveliness_subscribe(self.prefix + "worker/*", self._on_worker))
         self._decls.append(self.t.liveliness_subscribe(self.prefix + "owner/*/*", self._on_owner))
+        self._decls.append(self.t.liveliness_subscribe(self.prefix + "claim/*/*", self._on_claim))
         self._decls.append(self.t.liveliness_token(self.prefix + f"worker/{self.id}"))
         self._thread = threading.Thread(target=self._run, name=f"fleet-{self.id}", daemon=True)
         self._thread.start()
@@ -144,13 +147,22 @@ class FleetWorker:
                 self._last_owner[vehicle] = wid
         self._wake.set()
 
+    def _on_claim(self, key: str, alive: bool) -> None:
+        vehicle, wid = key.split("/")[-2:]
+        with self._lock:
+            held = self._claims.setdefault(vehicle, set())
+            (held.add if alive else held.discard)(wid)
+        self._wake.set()
+
     def live_workers(self) -> set[str]:
         with self._lock:
             return set(self._members) | {self.id}
 
     def _held_by_others(self, vehicle: str) -> set[str]:
+        """The other workers that serve or claim ``vehicle``."""
         with self._lock:
-            return set(self._owners.get(vehicle, ())) - {self.id}
+            return (set(self._owners.get(vehicle, ())) | set(self._claims.get(vehicle, ()))) \
+                - {self.id}
 
     # ------------------------------------------------------------------ reconciling
     def _run(self) -> None:
@@ -190,20 +202,19 @@ class FleetWorker:
             return
         # claim first, then look again: two workers that claimed at once (neither saw the
         # other yet) both see both claims after the settle time, and the higher score keeps it
-        claims = {v: self.t.liveliness_token(self.prefix + f"owner/{v}/{self.id}") for v in free}
+        claims = {v: self.t.liveliness_token(self.prefix + f"claim/{v}/{self.id}") for v in free}
         self._stop.wait(self.claim_settle_s)
-        for v, token in claims.items():
-            if self._stop.is_set() or self._outranked(v):
-                token.undeclare()
-                continue
-            self._take(v, token)
+        for v, claim in claims.items():
+            if not (self._stop.is_set() or self._outranked(v)):
+                self._take(v)
+            claim.undeclare()  # (after the ownership token of a vehicle taken)
 
     def _outranked(self, vehicle: str) -> bool:
         """Another worker claims ``vehicle`` with a higher rendezvous score than ours."""
         mine = score(self.id, vehicle)
         return any(score(o, vehicle) > mine for o in self._held_by_others(vehicle))
 
-    def _take(self, vehicle: str, token: Any) -> None:
+    def _take(self, vehicle: str) -> None:
         assert self.replica is not None
         rep = self.replica.fetch(vehicle, timeout=1.0)
         sp = self.make_processor(vehicle)
@@ -225,7 +236,8 @@ class FleetWorker:
         node = FilterNode(self.t, {vehicle: sp}, checkpoint_path=ReplicaSink(self.replica, vehicle),
                           checkpoint_every_s=self.checkpoint_every_s, **self.node_kw)
         node.fleet_info = info
-        node.start()
+        token = self.t.liveliness_token(self.prefix + f"owner/{vehicle}/{self.id}")
+        node.start()  # (outputs only under the ownership token)
         self.nodes[vehicle] = (node, token)
         self.takeovers.append({"vehicle": vehicle, **info})
         log.info("fleet %s: %s taken by %s (%s%s)", self.fleet, vehicle, self.id, info["source"],

@@ -89,7 +89,7 @@ class CheckpointReplica:
     def fetch(self, vehicle: str, timeout: float = 2.0) -> Replica | None:
         """The newest checkpoint of ``vehicle`` held here or by any other worker that answers."""
         try:
-            replies = self.t.get(self.key + vehicle, b"", timeout=timeout)
+            replies = self.t.get(self.key + vehicle, b"", timeout=timeout, every=True)
         except Exception as exc:  # no route, closed session: what we hold is the answer
             log.debug("fetch %s: %s", vehicle, exc)
             replies = []

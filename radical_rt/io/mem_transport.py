@@ -257,7 +257,8 @@ class InMemoryTransport:
             else:
                 d.fn(key, data)
 
-    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0,
+            every: bool = True) -> list[bytes]:
         if self.closed:
             raise TransportError("transport closed")
         replies: list[bytes] = []

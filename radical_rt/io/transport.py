@@ -19,7 +19,8 @@ The node only needs five things from a middleware, all with raw ``bytes`` payloa
   ``key`` alive now, then for each that appears or goes (fleets: who is alive, who owns what);
 * ``close()``.
 
-Clients (tests, tools) also use ``get(key, payload, timeout) -> [reply bytes]``. Every declaration
+Clients (tests, tools) also use ``get(key, payload, timeout, every=False) -> [reply bytes]``
+(``every``: every matching queryable answers, not only the best matching one). Every declaration
 returns a handle with ``undeclare()``.
 
 This module owns the protocol, its error and the key-expression matching. Two implementations:
@@ -88,7 +89,8 @@ class Transport(Protocol):
 
     def liveliness_subscribe(self, key: str, callback: Callable[[str, bool], None]) -> Handle: ...
 
-    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]: ...
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0,
+            every: bool = False) -> list[bytes]: ...
 
     def close(self) -> None: ...
 

@@ -136,12 +136,17 @@ class ZenohTransport:
 
     MATCH_WAIT_S = 2.0  # longest wait for a matching queryable before a get
 
-    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0) -> list[bytes]:
+    def get(self, key: str, payload: bytes = b"", timeout: float = 5.0,
+            every: bool = False) -> list[bytes]:
         """Query ``key``. A session that has just connected may not know the routes to the
         queryables yet (a get then returns no reply at once: issue 23, a client right after the
         node's "ready" line): first wait, up to min(timeout, MATCH_WAIT_S), until a querier on
-        the key has a matching queryable."""
-        querier = self.session.declare_querier(key, timeout=timeout)
+        the key has a matching queryable. every: ask every matching queryable and keep every
+        reply (Zenoh's default asks the best matching one only)."""
+        z = self.zenoh
+        kw: dict[str, Any] = ({"target": z.QueryTarget.ALL, "consolidation": z.ConsolidationMode.NONE}
+                              if every else {})
+        querier = self.session.declare_querier(key, timeout=timeout, **kw)
         try:
             end = time.monotonic() + min(timeout, self.MATCH_WAIT_S)
             while not querier.matching_status.matching and time.monotonic() < end:

@@ -5,6 +5,7 @@ truth, and no vehicle ever has two owners (issue #19)."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -16,6 +17,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from radical_rt.fleet.ownership import assign
 from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
@@ -52,6 +54,25 @@ def _owner_of(client: ZenohTransport, v: str) -> str | None:
     return (st["node"].get("fleet") or {}).get("worker")
 
 
+def _fleet_status(ep: str) -> list[dict]:
+    out = subprocess.run([sys.executable, "-m", "radical_rt.apps.cli", "fleet", "status",
+                          "--fleet", "f1", "--connect", ep, "--json"], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_fleet_option_errors(capsys):
+    from radical_rt.apps.cli import main as radical_main
+
+    assert radical_main(["node", "--fleet", "f1", "--vehicle", "v1"]) == 2
+    assert "--connect" in capsys.readouterr().err
+    assert radical_main(["node", "--vehicle", "v1", "--roster", "x.txt"]) == 2
+    assert "--roster needs --fleet" in capsys.readouterr().err
+    assert radical_main(["node", "--fleet", "f1", "--connect", "tcp/127.0.0.1:9"]) == 2
+    assert "a fleet needs vehicles" in capsys.readouterr().err
+
+
 def test_kill_one_worker_mid_stream(archives):
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
     router = _spawn("router", "--listen", ep)
@@ -83,10 +104,15 @@ def test_kill_one_worker_mid_stream(archives):
             _wait_line(w, "ready", 180)
         client.subscribe("radical/*/diag", on_diag)
         client.liveliness_subscribe("radical-fleet/f1/owner/*/*", on_owner)
-        wait_for(lambda: all(_owner_of(client, v) for v in VEHICLES), 30, 0.2,
-                 "every vehicle to be served")
+        def settled() -> bool:  # both workers up, each serving what rendezvous hashing gives it
+            ws = _fleet_status(ep)
+            want = assign(VEHICLES, [w["worker"] for w in ws])
+            return len(ws) == 2 and all(w["serving"] == sorted(v for v in VEHICLES
+                                                               if want[v] == w["worker"])
+                                        for w in ws)
+        wait_for(settled, 60, 0.5, "both workers to share the roster")
         owners = {v: _owner_of(client, v) for v in VEHICLES}
-        assert len(set(owners.values())) == 2, owners  # both workers serve (3 vehicles, 2 workers)
+        assert all(owners.values()), owners
 
         msgs = input_messages(archives["a60"])
         t0, ns0 = time.monotonic(), msgs[0][1]
@@ -99,15 +125,19 @@ def test_kill_one_worker_mid_stream(archives):
                 time.sleep(delay)
             if killed_at is None and (ns - ns0) / 1e9 > 24.0:
                 os.kill(victim_pid, signal.SIGKILL)
-                killed_at = time.monotonic()
+                killed_at, killed_unix = time.monotonic(), time.time()
             for v in VEHICLES:
                 client.put(f"radical/{v}/{topic}", data, block=True)
         assert killed_at is not None
-        survivor = next(w for w in set(owners.values()) if w != victim_id)
+        survivor = next(w["worker"] for w in _fleet_status(ep))  # the only one left
         wait_for(lambda: all(_owner_of(client, v) == survivor for v in VEHICLES), 15, 0.2,
                  "the survivor to serve every vehicle")
 
         moved = [v for v in VEHICLES if owners[v] == victim_id]
+        [after] = _fleet_status(ep)
+        assert after["worker"] == survivor and after["serving"] == VEHICLES
+        assert {t["vehicle"] for t in after["takeovers"] if t["taken_unix"] > killed_unix} \
+            == set(moved)
         with ArchiveReader(archives["a60"]) as r:
             truth = [m for _t, _ns, m in r.iter_messages("/truth/params")][-1]
         for v in VEHICLES:

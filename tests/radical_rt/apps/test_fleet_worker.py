@@ -111,4 +111,4 @@ def test_join_and_crash(fleet, archives):
         st = _status(client, v)
         assert st["node"]["fleet"]["source"] == "replica" and st["node"]["fleet"]["lost_s"] >= 0
         assert t["loss_flagged"] and st["counters"]["input_gaps"] == 1  # the crash's loss
-    assert watch.most == 1  # never two owners of one vehicle at once
+    assert watch.most == 1  # never two owners of one vehicle at once (claims are not owners)
