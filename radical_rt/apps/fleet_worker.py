@@ -223,12 +223,13 @@ class FleetWorker:
         if rep is not None:
             try:
                 ckpt.restore(sp, rep.state(), new_stream=True)
+                age = max(0.0, time.time() - rep.t_wall)
                 info.update(source="replica", replica_worker=rep.worker, replica_seq=rep.seq,
-                            lost_s=max(0.0, time.time() - rep.t_wall))
+                            replica_age_s=age, lost_s=0.0, loss_flagged=False)
                 if not rep.final or rep.worker != self._last_owner.get(vehicle, rep.worker):
                     # not handed over (its owner crashed): the input since then is lost
-                    sp.note_takeover_loss(info["lost_s"])
-                    info["loss_flagged"] = True
+                    sp.note_takeover_loss(age)
+                    info.update(lost_s=age, loss_flagged=True)
             except ckpt.CheckpointError as exc:
                 log.error("fleet %s: replica of %s unusable (%s): cold start", self.fleet,
                           vehicle, exc)
