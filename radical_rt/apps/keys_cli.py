@@ -1,6 +1,7 @@
 """Create a security profile for the live system (docs/security.md).
 
     radical keys init DIR [--no-tls] [--port P] [--user ROLE:NAME ...] [--force]
+    radical keys kit DIR --user NAME -o OUT
 
 Writes a ready profile into DIR: one user per role (``sensor``, ``node``, ``monitor``,
 ``operator``, each named after its role, plus every ``--user``) with random passwords in
@@ -9,8 +10,10 @@ certificate (127.0.0.1, localhost) and one client certificate per user (common n
 Zenoh configurations ``DIR/<role>.json5`` (one client per role, usable by any Zenoh client) and
 ``DIR/router.json5`` (the enforcement point: a zenohd router, or a node that listens); and
 ``profile.json``. Then every command that opens a session takes ``--auth DIR --role ROLE``.
-Secrets are written with mode 0600 and DIR with 0700. Exit 0, 2 on a bad option or an existing
-profile (``--force`` replaces it).
+Secrets are written with mode 0600 and DIR with 0700. ``keys kit`` copies what one user needs
+(profile.json, the CA certificate, the user's client configuration and certificate: no other
+user's secret, no users.txt) into OUT, for ``--auth OUT``. Exit 0, 2 on a bad option or an
+existing profile (``--force`` replaces it).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ _USER = re.compile(r"^[a-z][a-z0-9_-]{0,31}$")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    sub = p.add_subparsers(dest="keys", metavar="{init}")
+    sub = p.add_subparsers(dest="keys", metavar="{init,kit}")
     init = sub.add_parser("init", help="write a new profile into DIR")
     init.add_argument("dir", metavar="DIR", help="profile directory (created)")
     init.add_argument("--no-tls", dest="tls", action="store_false",
@@ -43,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     init.add_argument("--user", action="append", default=[], metavar="ROLE:NAME",
                       help="one more user with a role (repeatable), e.g. operator:alice")
     init.add_argument("--force", action="store_true", help="replace an existing profile in DIR")
+    kit = sub.add_parser("kit", help="copy one user's credentials out of a profile (what to "
+                         "hand to that user: no other user's secret)")
+    kit.add_argument("dir", metavar="DIR", help="the whole profile (from keys init)")
+    kit.add_argument("--user", required=True, metavar="NAME", help="the user the kit is for")
+    kit.add_argument("-o", "--out", required=True, metavar="OUT", help="kit directory (created)")
 
 
 def parse_users(specs: list[str]) -> dict[str, str]:
@@ -99,6 +107,32 @@ def init_profile(directory: str | os.PathLike, tls: bool = True, port: int = zco
     return prof
 
 
+def make_kit(directory: str | os.PathLike, user: str, out: str | os.PathLike) -> Path:
+    """Copy ``user``'s files out of a profile: profile.json, ca.pem, the user's client
+    configuration (and certificate); ValueError for an unknown user or an existing OUT."""
+    prof = Profile.load(directory)
+    role = prof.role_of(user)
+    if role is None:
+        raise ValueError(f"profile {prof.directory} has no user {user!r}")
+    dst = Path(out)
+    if dst.exists() and any(dst.iterdir()):
+        raise ValueError(f"{dst} exists and is not empty")
+    dst.mkdir(parents=True, exist_ok=True)
+    os.chmod(dst, 0o700)
+    src = prof.directory
+    conf = f"{role}.json5" if prof.user_of(role) == user else f"user-{user}.json5"
+    names = ["profile.json", conf] + (["ca.pem", f"{user}.pem", f"{user}.key"] if prof.tls else [])
+    for name in names:
+        data = (src / name).read_text()
+        if name == conf and prof.tls:  # the kit's own certificate paths
+            data = data.replace(str(src), str(dst.resolve()))
+        if name.endswith((".key", ".json5")):
+            _write_secret(dst / name, data)
+        else:
+            (dst / name).write_text(data)
+    return dst
+
+
 def _write_secret(path: Path, text: str) -> None:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as f:
@@ -124,8 +158,17 @@ def _json5(doc: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.keys == "kit":
+        try:
+            out = make_kit(args.dir, args.user, args.out)
+        except (ValueError, AuthError, OSError) as exc:
+            print(f"radical keys: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"kit for {args.user} written to {out}: use --auth {out} --user {args.user}")
+        return 0
     if args.keys != "init":
-        print("radical keys: give a subcommand: init DIR", file=sys.stderr)
+        print("radical keys: give a subcommand: init DIR | kit DIR --user NAME -o OUT",
+              file=sys.stderr)
         return 2
     try:
         prof = init_profile(args.dir, args.tls, args.port, parse_users(args.user), args.force)

@@ -90,20 +90,28 @@ class Profile:
         if not isinstance(users, dict) or any(r not in ROLES for r in users.values()):
             raise AuthError(f"{meta}: 'users' must map user names to roles {ROLES}")
         prof = cls(d.resolve(), str(info.get("endpoint")), bool(info.get("tls")), dict(users))
-        prof.passwords = _read_dictionary(d / "users.txt")
-        missing = sorted(set(users) - set(prof.passwords))
-        if missing:
-            raise AuthError(f"{d / 'users.txt'}: no password for {missing}")
+        if (d / "users.txt").exists():  # the whole profile (the enforcement point's copy)
+            prof.passwords = _read_dictionary(d / "users.txt")
+            missing = sorted(set(users) - set(prof.passwords))
+            if missing:
+                raise AuthError(f"{d / 'users.txt'}: no password for {missing}")
+        else:  # a user's kit: profile.json, ca.pem and that user's own files only
+            prof.passwords = _kit_passwords(d, users)
+            if not prof.passwords:
+                raise AuthError(f"{d} holds no credentials (neither users.txt nor a "
+                                "<role>.json5 client configuration)")
         return prof
 
     def user_of(self, role: str) -> str:
-        """The profile's user for ``role`` (the first listed); AuthError if it has none."""
+        """The profile's user for ``role`` whose credentials this copy holds (the first listed);
+        AuthError if there is none."""
         if role not in ROLES:
             raise AuthError(f"unknown role {role!r}; roles: {', '.join(ROLES)}")
         for user, r in self.users.items():
-            if r == role:
+            if r == role and user in self.passwords:
                 return user
-        raise AuthError(f"profile {self.directory} has no user with role {role!r}")
+        raise AuthError(f"profile {self.directory} holds no credentials of a user with role "
+                        f"{role!r}")
 
     def role_of(self, user: str) -> str | None:
         """The role of ``user``, None if the profile does not know it."""
@@ -118,6 +126,8 @@ class Profile:
     def client_settings(self, user: str) -> dict[str, Any]:
         """Config key path → value for a session of ``user`` that connects to the enforcement
         point (credentials; with TLS the CA and the user's certificate)."""
+        if user not in self.passwords:
+            raise AuthError(f"profile {self.directory} holds no credentials of user {user!r}")
         out: dict[str, Any] = {"transport/auth/usrpwd/user": user,
                                "transport/auth/usrpwd/password": self.passwords[user]}
         if self.tls:
@@ -131,6 +141,9 @@ class Profile:
         """Config key path → value for the enforcement point (the node that listens, or a
         router): the usrpwd dictionary, the access-control list, with TLS the server certificate
         and client-certificate checking."""
+        if not (self.directory / "users.txt").exists():
+            raise AuthError(f"{self.directory} is a user's kit (no users.txt): only the whole "
+                            "profile can run the enforcement point")
         out: dict[str, Any] = {
             "transport/auth/usrpwd/dictionary_file": str(self.directory / "users.txt"),
             "access_control": access_control(self.users, self.tls)}
@@ -140,6 +153,23 @@ class Profile:
                         "transport/link/tls/root_ca_certificate": str(self.directory / "ca.pem"),
                         "transport/link/tls/enable_mtls": True})
         return out
+
+
+def _kit_passwords(d: Path, users: dict[str, str]) -> dict[str, str]:
+    """user → password from the client configurations in a user's kit (``<role>.json5``,
+    ``user-<name>.json5``)."""
+    out = {}
+    for f in sorted(d.glob("*.json5")):
+        if f.name == "router.json5":
+            continue
+        try:
+            doc = json.loads(f.read_text().split("\n", 1)[1])
+            cred = doc["transport"]["auth"]["usrpwd"]
+        except (OSError, ValueError, KeyError, IndexError, TypeError):
+            continue  # not one of ours
+        if cred.get("user") in users and isinstance(cred.get("password"), str):
+            out[cred["user"]] = cred["password"]
+    return out
 
 
 def _read_dictionary(path: Path) -> dict[str, str]:

@@ -143,6 +143,11 @@ def test_tls_client_certificates(tmp_path, capsys):
     try:
         rc, r, _ = _cmd(capsys, "get_params", "--auth", str(prof.directory), "--role", "operator")
         assert rc == 0 and r["ok"]
+        from radical_rt.apps.keys_cli import make_kit
+
+        kit = make_kit(prof.directory, "monitor", tmp_path / "kit")  # what a monitor is handed
+        rc, r, _ = _cmd(capsys, "status", "--auth", str(kit))
+        assert rc == 0 and r["ok"]
         wrong = prof.client_settings("operator")  # right password, certificate of another CA
         wrong.update({"transport/link/tls/connect_certificate": str(other.directory / "operator.pem"),
                       "transport/link/tls/connect_private_key": str(other.directory / "operator.key")})
@@ -158,7 +163,7 @@ def test_tls_client_certificates(tmp_path, capsys):
         with pytest.raises(TransportError, match="cannot open"):
             ZenohTransport("client", connect=[prof.endpoint], extra=wrong_ca)
         rec = sn.node.audit.summary(V)
-        assert rec["applied"] == 1 and rec["last"][0]["user"] == "operator"
+        assert rec["applied"] == 2 and [e["user"] for e in rec["last"]] == ["operator", "monitor"]
     finally:
         sn.close()
 

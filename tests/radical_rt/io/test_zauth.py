@@ -137,3 +137,26 @@ def test_keys_cli(tmp_path, capsys):
     assert radical_main(["keys", "init", str(tmp_path / "k")]) == 2
     assert "already holds a profile" in capsys.readouterr().err
     assert radical_main(["keys", "init", str(tmp_path / "k2"), "--user", "boss:x"]) == 2
+
+
+def test_a_users_kit_holds_only_its_own_secrets(tmp_path):
+    from radical_rt.apps.keys_cli import make_kit
+
+    prof = init_profile(tmp_path / "p", port=17007, users=parse_users(["operator:alice"]))
+    kit = make_kit(prof.directory, "alice", tmp_path / "kit")
+    names = sorted(f.name for f in kit.iterdir())
+    assert names == ["alice.key", "alice.pem", "ca.pem", "profile.json", "user-alice.json5"]
+    assert _mode(kit) == 0o700 and _mode(kit / "alice.key") == 0o600
+    sa = zauth.session_auth(str(kit), None, "monitor", user="alice")
+    settings = sa.settings(listening=False)
+    assert settings["transport/auth/usrpwd/password"] == prof.passwords["alice"]
+    assert settings["transport/link/tls/connect_certificate"] == str(kit.resolve() / "alice.pem")
+    assert sa.profile.passwords == {"alice": prof.passwords["alice"]}  # nobody else's
+    with pytest.raises(zauth.AuthError, match="holds no credentials of a user with role"):
+        zauth.session_auth(str(kit), "monitor", "monitor")
+    with pytest.raises(zauth.AuthError, match="user's kit"):
+        sa.profile.listener_settings()
+    with pytest.raises(ValueError, match="not empty"):
+        make_kit(prof.directory, "alice", kit)
+    with pytest.raises(ValueError, match="no user 'bob'"):
+        make_kit(prof.directory, "bob", tmp_path / "kit2")
