@@ -9,16 +9,25 @@ vehicle's token, exactly as a single node), plus an ownership token
 (:mod:`radical_rt.fleet.replica`) every ``checkpoint_every_s`` and when it lets a vehicle go.
 
 When the live workers change (a join, a clean leave, a crash seen through the lease), every
-worker recomputes the owners. A worker lets go of the vehicles it no longer owns (final
-checkpoint published, then its ownership token undeclared) and takes the vehicles it now owns
-once **no other worker serves or claims them**: it declares a claim token
-(``radical-fleet/F/claim/<V>/<id>``), waits ``claim_settle_s`` and takes the vehicle (ownership
-token first, then the node) only if no rival with a higher rendezvous score claims or serves it
-(so two workers that claimed at once, each before seeing the other, agree on one),
-from the newest replica (a new stream: warm start, clock phase forgotten) or
-cold if there is none. What a takeover lost (the wall time since that replica was written) is
-counted and reported in ``diag.node.fleet`` and ``status``. A worker that loses its link to
-every router stops serving (it can no longer tell who is alive) until the link is back.
+worker recomputes the owners.
+
+* **Handover** (clean join or leave): the next owner opens the vehicle's input FIFO without
+  feeding it and declares ``radical-fleet/F/hold/<V>/<id>``; the old owner then stops at a cut
+  (:class:`~radical_rt.apps.fleet_node.FleetNode`: every input queued before it fed, none
+  after), publishes the final checkpoint with the digest of the last input fed, and undeclares
+  its ownership token; the next owner restores it as the *same* stream, drops the held inputs
+  the old owner fed and serves. The result equals an uninterrupted run bit for bit. A leaving
+  worker first undeclares its worker token so the others start holding.
+* **Takeover** (crash, or no holder within ``handover_wait_s``): the new owner waits until no
+  other worker serves or claims the vehicle, claims it (``radical-fleet/F/claim/<V>/<id>``),
+  waits ``claim_settle_s`` and takes it only if no rival with a higher rendezvous score claims
+  or serves it, from the newest replica as a new stream (warm start) or cold if there is none.
+  What a crash lost (the wall time since that replica) is counted as an input gap, flagged
+  (INPUT_GAP) and reported in ``diag.node.fleet`` and ``status``.
+
+Outputs are published only under the ownership token, so two workers never serve one vehicle at
+once. A worker that loses its link to every router stops serving (it can no longer tell who is
+alive) until the link is back.
 """
 
 from __future__ import annotations
@@ -33,9 +42,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from radical_rt.apps.node import FilterNode
-from radical_rt.fleet.ownership import owner, score
-from radical_rt.fleet.replica import CheckpointReplica, fleet_prefix
+from radical_rt.apps.fleet_node import FleetNode
+from radical_rt.fleet.ownership import owner
+from radical_rt.fleet.replica import CheckpointReplica, Replica, fleet_prefix
+from radical_rt.fleet.view import KINDS, FleetView
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.transport import Transport
 from radical_rt.stream.processor import StreamProcessor
@@ -73,6 +83,8 @@ class FleetWorker:
     vehicles: the roster. make_processor(name) → a fresh StreamProcessor. node_kw: FilterNode
     options for every vehicle. checkpoint_every_s: wall seconds between replica checkpoints.
     claim_settle_s: how long a claim waits for rival claims before the worker serves.
+    handover_wait_s: how long a vehicle no longer owned waits for its next owner to hold its
+    inputs before it is let go without a handover.
     """
 
     RECONCILE_S = 0.25  # the controller looks at least this often
@@ -80,7 +92,8 @@ class FleetWorker:
     def __init__(self, transport: Transport, fleet: str, vehicles: list[str],
                  make_processor: Callable[[str], StreamProcessor], *,
                  worker_id: str | None = None, checkpoint_every_s: float = 10.0,
-                 claim_settle_s: float = 0.3, node_kw: dict[str, Any] | None = None) -> None:
+                 claim_settle_s: float = 0.3, handover_wait_s: float = 3.0,
+                 node_kw: dict[str, Any] | None = None) -> None:
         if not _NAME.match(fleet):
             raise ValueError(f"fleet name {fleet!r} must match [a-z0-9_-]+")
         self.t, self.fleet, self.vehicles = transport, fleet, sorted(set(vehicles))
@@ -88,28 +101,30 @@ class FleetWorker:
         self.make_processor, self.node_kw = make_processor, dict(node_kw or {})
         self.checkpoint_every_s = checkpoint_every_s
         self.claim_settle_s = claim_settle_s  # ≫ the time a token takes to reach every worker
+        self.handover_wait_s = handover_wait_s
         self.prefix = fleet_prefix(fleet)
-        self.nodes: dict[str, tuple[FilterNode, Any]] = {}  # vehicle → (node, ownership token)
+        self.nodes: dict[str, tuple[FleetNode, Any]] = {}  # served: vehicle → (node, owner token)
+        self.holding: dict[str, tuple[FleetNode, Any]] = {}  # inputs held: (node, hold token)
         self.takeovers: list[dict[str, Any]] = []
         self.fenced = False  # no router: serving nothing until the link is back
-        self._lock = threading.Lock()
-        self._members: set[str] = set()
-        self._owners: dict[str, set[str]] = {}  # vehicle → workers serving it (owner tokens)
-        self._claims: dict[str, set[str]] = {}  # vehicle → workers claiming it (claim tokens)
-        self._last_owner: dict[str, str] = {}  # the last other worker seen owning each vehicle
         self._wake = threading.Event()
+        self.view = FleetView(self.id, self._wake.set)
+        self._unowned_since: dict[str, float] = {}
         self._stop = threading.Event()
         self._decls: list[Any] = []
+        self._token: Any = None
         self._thread: threading.Thread | None = None
         self.replica: CheckpointReplica | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> FleetWorker:
         self.replica = CheckpointReplica(self.t, self.fleet, self.id)
-        self._decls.append(self.t.liveliness_subscribe(self.prefix + "worker/*", self._on_worker))
-        self._decls.append(self.t.liveliness_subscribe(self.prefix + "owner/*/*", self._on_owner))
-        self._decls.append(self.t.liveliness_subscribe(self.prefix + "claim/*/*", self._on_claim))
-        self._decls.append(self.t.liveliness_token(self.prefix + f"worker/{self.id}"))
+        self._decls.append(self.t.liveliness_subscribe(self.prefix + "worker/*",
+                                                       self.view.on_worker))
+        for kind in KINDS:
+            self._decls.append(self.t.liveliness_subscribe(self.prefix + f"{kind}/*/*",
+                                                           self.view.on_token))
+        self._token = self.t.liveliness_token(self.prefix + f"worker/{self.id}")
         self._thread = threading.Thread(target=self._run, name=f"fleet-{self.id}", daemon=True)
         self._thread.start()
         log.info("fleet %s: worker %s started (%d vehicles in the roster)", self.fleet, self.id,
@@ -117,52 +132,28 @@ class FleetWorker:
         return self
 
     def stop(self) -> None:
-        """Let every vehicle go (final checkpoints published), then leave the fleet."""
+        """Leave the fleet cleanly: say so (worker token undeclared), hand every vehicle to the
+        worker that now owns it once it holds the inputs (or after handover_wait_s), leave."""
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+        end = time.monotonic() + (self.handover_wait_s if self.nodes else 0.0)
         for v in sorted(self.nodes):
+            while not self.view.others("hold", v) and time.monotonic() < end:
+                time.sleep(0.02)
             self._release(v)
+        for v in list(self.holding):
+            self._drop_hold(v)
         for d in reversed(self._decls):
             d.undeclare()
         self._decls.clear()
         if self.replica is not None:
             self.replica.close()
-
-    # ------------------------------------------------------------------ liveliness
-    def _on_worker(self, key: str, alive: bool) -> None:
-        wid = key.rsplit("/", 1)[-1]
-        with self._lock:
-            (self._members.add if alive else self._members.discard)(wid)
-        self._wake.set()
-
-    def _on_owner(self, key: str, alive: bool) -> None:
-        vehicle, wid = key.split("/")[-2:]
-        with self._lock:
-            held = self._owners.setdefault(vehicle, set())
-            (held.add if alive else held.discard)(wid)
-            if alive and wid != self.id:
-                self._last_owner[vehicle] = wid
-        self._wake.set()
-
-    def _on_claim(self, key: str, alive: bool) -> None:
-        vehicle, wid = key.split("/")[-2:]
-        with self._lock:
-            held = self._claims.setdefault(vehicle, set())
-            (held.add if alive else held.discard)(wid)
-        self._wake.set()
-
-    def live_workers(self) -> set[str]:
-        with self._lock:
-            return set(self._members) | {self.id}
-
-    def _held_by_others(self, vehicle: str) -> set[str]:
-        """The other workers that serve or claim ``vehicle``."""
-        with self._lock:
-            return (set(self._owners.get(vehicle, ())) | set(self._claims.get(vehicle, ()))) \
-                - {self.id}
 
     # ------------------------------------------------------------------ reconciling
     def _run(self) -> None:
@@ -176,28 +167,28 @@ class FleetWorker:
             except Exception:  # a bug: keep the worker alive, log it loudly
                 log.exception("fleet %s: reconcile failed", self.fleet)
 
+    def live_workers(self) -> set[str]:
+        return self.view.live()
+
     def owned(self) -> list[str]:
         """The vehicles this worker should serve now."""
-        live = self.live_workers()
+        live = self.view.live()
         return [v for v in self.vehicles if owner(v, live) == self.id]
 
     def reconcile(self) -> None:
-        """Let go of the vehicles no longer owned; take those owned and free (controller thread)."""
-        connected = getattr(self.t, "connected", lambda: True)()
-        if not connected:
-            if not self.fenced:
-                log.warning("fleet %s: worker %s lost its link: serving nothing until it is "
-                            "back", self.fleet, self.id)
-            self.fenced = True
-            for v in sorted(self.nodes):
-                self._release(v, publish=False)
+        """One look at the fleet (controller thread): let go, hold, claim and take."""
+        if not getattr(self.t, "connected", lambda: True)():
+            self._fence()
             return
         self.fenced = False
         target = set(self.owned())
-        for v in sorted(self.nodes):
-            if v not in target or self._outranked(v):
-                self._release(v)
-        free = [v for v in sorted(target - set(self.nodes)) if not self._held_by_others(v)]
+        self._let_go(target)
+        for v in sorted(set(self.holding) - target):
+            self._drop_hold(v)
+        for v in sorted(target - set(self.nodes) - set(self.holding)):
+            if self.view.others("owner", v):  # served elsewhere: hold its inputs, then take it
+                self._hold(v)
+        free = [v for v in sorted(target - set(self.nodes)) if not self.view.taken_by_others(v)]
         if not free:
             return
         # claim first, then look again: two workers that claimed at once (neither saw the
@@ -205,63 +196,125 @@ class FleetWorker:
         claims = {v: self.t.liveliness_token(self.prefix + f"claim/{v}/{self.id}") for v in free}
         self._stop.wait(self.claim_settle_s)
         for v, claim in claims.items():
-            if not (self._stop.is_set() or self._outranked(v)):
+            if not (self._stop.is_set() or self.view.outranked(v)):
                 self._take(v)
             claim.undeclare()  # (after the ownership token of a vehicle taken)
 
-    def _outranked(self, vehicle: str) -> bool:
-        """Another worker claims ``vehicle`` with a higher rendezvous score than ours."""
-        mine = score(self.id, vehicle)
-        return any(score(o, vehicle) > mine for o in self._held_by_others(vehicle))
+    def _let_go(self, target: set[str]) -> None:
+        """Release the vehicles no longer owned: at a cut once the next owner holds their
+        inputs, without one after handover_wait_s; at once when outranked."""
+        now = time.monotonic()
+        for v in sorted(self.nodes):
+            if v in target and not self.view.outranked(v):
+                self._unowned_since.pop(v, None)
+                continue
+            since = self._unowned_since.setdefault(v, now)
+            if self.view.others("hold", v) or self.view.outranked(v) \
+                    or now - since >= self.handover_wait_s:
+                self._release(v)
+                self._unowned_since.pop(v, None)
+
+    def _fence(self) -> None:
+        if not self.fenced:
+            log.warning("fleet %s: worker %s lost its link: serving nothing until it is back",
+                        self.fleet, self.id)
+        self.fenced = True
+        for v in sorted(self.nodes):
+            self._release(v, publish=False)
+        for v in list(self.holding):
+            self._drop_hold(v)
+
+    # ------------------------------------------------------------------ one vehicle
+    def _new_node(self, vehicle: str, sp: StreamProcessor | None = None) -> FleetNode:
+        assert self.replica is not None
+        node = FleetNode(self.t, {vehicle: sp or self.make_processor(vehicle)},
+                         checkpoint_path=ReplicaSink(self.replica, vehicle),
+                         checkpoint_every_s=self.checkpoint_every_s, **self.node_kw)
+        node.open_inbox()
+        return node
+
+    def _hold(self, vehicle: str) -> None:
+        """Hold the inputs of a vehicle served elsewhere (its FIFO open, not fed), then say so."""
+        node = self._new_node(vehicle)
+        self.holding[vehicle] = (node, self.t.liveliness_token(self.prefix + f"hold/{vehicle}/{self.id}"))
+        log.info("fleet %s: %s holds the inputs of %s", self.fleet, self.id, vehicle)
+
+    def _drop_hold(self, vehicle: str) -> None:
+        node, token = self.holding.pop(vehicle)
+        token.undeclare()
+        node.stop(drain_s=0.0, final_checkpoint=False)
 
     def _take(self, vehicle: str) -> None:
         assert self.replica is not None
+        held = self.holding.pop(vehicle, None)
+        node = held[0] if held is not None else self._new_node(vehicle)
         rep = self.replica.fetch(vehicle, timeout=1.0)
-        sp = self.make_processor(vehicle)
         info: dict[str, Any] = {"worker": self.id, "fleet": self.fleet, "taken_unix": time.time(),
                                 "source": "cold", "replica_worker": None, "lost_s": None}
         if rep is not None:
-            try:
-                ckpt.restore(sp, rep.state(), new_stream=True)
-                age = max(0.0, time.time() - rep.t_wall)
-                info.update(source="replica", replica_worker=rep.worker, replica_seq=rep.seq,
-                            replica_age_s=age, lost_s=0.0, loss_flagged=False)
-                if not rep.final or rep.worker != self._last_owner.get(vehicle, rep.worker):
-                    # not handed over (its owner crashed): the input since then is lost
-                    sp.note_takeover_loss(age)
-                    info.update(lost_s=age, loss_flagged=True)
-            except ckpt.CheckpointError as exc:
-                log.error("fleet %s: replica of %s unusable (%s): cold start", self.fleet,
-                          vehicle, exc)
-                sp = self.make_processor(vehicle)
-        node = FilterNode(self.t, {vehicle: sp}, checkpoint_path=ReplicaSink(self.replica, vehicle),
-                          checkpoint_every_s=self.checkpoint_every_s, **self.node_kw)
+            node = self._restore(node, rep, info, held is not None)
         node.fleet_info = info
         token = self.t.liveliness_token(self.prefix + f"owner/{vehicle}/{self.id}")
-        node.start()  # (outputs only under the ownership token)
+        node.serve()  # (outputs only under the ownership token)
+        if held is not None:
+            held[1].undeclare()
         self.nodes[vehicle] = (node, token)
         self.takeovers.append({"vehicle": vehicle, **info})
         log.info("fleet %s: %s taken by %s (%s%s)", self.fleet, vehicle, self.id, info["source"],
-                 f", {info['lost_s']:.1f} s since the replica" if info["lost_s"] is not None else "")
+                 f", {info['lost_s']:.1f} s lost" if info.get("loss_flagged") else "")
+
+    def _restore(self, node: FleetNode, rep: Replica, info: dict[str, Any],
+                 held: bool) -> FleetNode:
+        """Put the replica's state into the (not yet serving) node; the node to serve."""
+        v, sp = node.vehicle.name, node.vehicle.sp
+        handover = (held and rep.final and rep.handover
+                    and rep.worker == self.view.last_owner(v))
+        age = max(0.0, time.time() - rep.t_wall)
+        try:
+            # a handover continues the stream (bit for bit); otherwise a new stream starts
+            ckpt.restore(sp, rep.state(), new_stream=not handover)
+        except ckpt.CheckpointError as exc:
+            log.error("fleet %s: replica of %s unusable (%s): cold start", self.fleet, v, exc)
+            node.stop(drain_s=0.0, final_checkpoint=False)
+            return self._new_node(v)
+        info.update(source="handover" if handover else "replica", replica_worker=rep.worker,
+                    replica_seq=rep.seq, replica_age_s=age, lost_s=0.0, loss_flagged=False)
+        if handover:
+            info["held_dropped"] = node.skip_through(rep.cut)  # those the old owner fed
+        elif not rep.final or rep.worker != self.view.last_owner(v):
+            # not handed over (its owner crashed): the input since that checkpoint is lost
+            sp.note_takeover_loss(age)
+            info.update(lost_s=age, loss_flagged=True)
+        return node
 
     def _release(self, vehicle: str, publish: bool = True) -> None:
-        """Stop serving ``vehicle``: the node stops (what is queued is fed), the final checkpoint
-        goes to the replica, then the ownership token goes (the next owner waits for that)."""
+        """Stop serving ``vehicle``. When another worker holds its inputs: stop at a cut (every
+        input queued now fed, none after). Then the final checkpoint goes to the replica (with
+        the cut), and only then the ownership token (the next owner waits for that)."""
         node, token = self.nodes.pop(vehicle)
+        cut, digest = False, None
+        if publish and self.view.others("hold", vehicle):
+            try:
+                digest, cut = node.cut(), True
+            except (TimeoutError, RuntimeError) as exc:
+                log.error("fleet %s: no cut for %s (%s): let go without a handover",
+                          self.fleet, vehicle, exc)
         node.stop(drain_s=0.5, final_checkpoint=False)
         if publish and self.replica is not None:
             try:
-                self.replica.publish(vehicle, ckpt.capture(node.vehicles[vehicle].sp, vehicle),
-                                     final=True)
+                self.replica.publish(vehicle, ckpt.capture(node.vehicle.sp, vehicle),
+                                     final=True, handover=cut, cut=digest)
             except Exception as exc:  # the final checkpoint failed: the periodic one stands
                 log.error("fleet %s: final checkpoint of %s failed: %s", self.fleet, vehicle, exc)
         token.undeclare()
-        log.info("fleet %s: %s let go by %s", self.fleet, vehicle, self.id)
+        log.info("fleet %s: %s let go by %s%s", self.fleet, vehicle, self.id,
+                 " at a cut" if cut else "")
 
     def status(self) -> dict[str, Any]:
         """The worker's view: live workers, owned/served vehicles, takeovers."""
         return {"worker": self.id, "fleet": self.fleet, "live_workers": sorted(self.live_workers()),
-                "serving": sorted(self.nodes), "owned": self.owned(), "fenced": self.fenced,
+                "serving": sorted(self.nodes), "holding": sorted(self.holding),
+                "owned": self.owned(), "fenced": self.fenced,
                 "takeovers": list(self.takeovers),
                 "replicas": {v: {"worker": r.worker, "seq": r.seq, "age_s": time.time() - r.t_wall}
                              for v, r in (self.replica.vehicles() if self.replica else {}).items()}}

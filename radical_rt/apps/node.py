@@ -148,8 +148,12 @@ class FilterNode:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Declare the input FIFO, queryables and liveliness tokens; start the filter loop."""
-        self.running = True
-        self._next_ckpt = self._mono() + self.checkpoint_every_s
+        self.open_inbox()
+        self.serve()
+
+    def open_inbox(self) -> None:
+        """Declare the input FIFO only: inputs are held in it until :meth:`serve` (a fleet's
+        handover holds the inputs of a vehicle before it takes it over)."""
         if len(self.vehicles) == 1:  # one FIFO for every input (see the module docstring)
             key = next(iter(self.vehicles.values())).prefix + "*"
         else:
@@ -158,6 +162,11 @@ class FilterNode:
         if isinstance(self.transport, ZenohTransport):  # oversized samples dropped uncopied
             kw["max_payload"] = max(v.sp.max_payload_bytes for v in self.vehicles.values())
         self._inbox = self.transport.inbox(key, self.queue_size, self.queue_wait_s, **kw)
+
+    def serve(self) -> None:
+        """Start the filter loop on the open FIFO; declare queryables and liveliness tokens."""
+        self.running = True
+        self._next_ckpt = self._mono() + self.checkpoint_every_s
         self._thread = threading.Thread(target=self._loop, name="radical-filter", daemon=True)
         self._thread.start()
         if self.rt_priority is not None:

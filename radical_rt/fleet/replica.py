@@ -8,7 +8,8 @@ newest one in memory, so a survivor that takes a vehicle over already holds its 
 that joins later asks the others (a queryable on the same keys answers with what it holds).
 
 The payload is a msgpack envelope ``{"v": 1, "fleet", "vehicle", "worker", "seq", "t_wall",
-"final", "ckpt"}`` (``final``: written as its owner let the vehicle go) where ``ckpt`` is :func:`radical_rt.io.checkpoint.dumps` of that one vehicle (schema
+"final", "handover", "cut", "ckpt"}`` (``final``: written as its owner let the vehicle go;
+``handover``: at a cut, ``cut`` the digest of the last input it fed) where ``ckpt`` is :func:`radical_rt.io.checkpoint.dumps` of that one vehicle (schema
 and SHA-256 checked on receipt). Of two checkpoints of a vehicle the one with the later
 ``(t_wall, worker, seq)`` is kept. Malformed or damaged envelopes are counted and ignored.
 """
@@ -44,6 +45,8 @@ class Replica:
     t_wall: float
     data: bytes  # checkpoint.dumps({vehicle: state})
     final: bool = False  # written when its owner let the vehicle go (nothing after it was lost)
+    cut: bytes | None = None  # with a handover: the digest of the last input its owner fed
+    handover: bool = False  # its owner stopped at a cut the next owner holds the inputs after
 
     def order(self) -> tuple[float, str, int]:
         return (self.t_wall, self.worker, self.seq)
@@ -70,13 +73,15 @@ class CheckpointReplica:
         self._decls = [transport.subscribe(self.key + "*", self._on_sample, remote_only=True),
                        transport.queryable(self.key + "*", self._on_query, keyed=True)]
 
-    def publish(self, vehicle: str, state: dict[str, Any], final: bool = False) -> Replica:
+    def publish(self, vehicle: str, state: dict[str, Any], final: bool = False,
+                handover: bool = False, cut: bytes | None = None) -> Replica:
         """Hold and publish a new checkpoint of ``vehicle`` (``checkpoint.capture`` output);
-        ``final``: the last one before this worker lets the vehicle go."""
+        ``final``: the last one before this worker lets the vehicle go; ``handover``/``cut``:
+        it stopped at a cut, ``cut`` the digest of the last input it fed (None: none)."""
         with self._lock:
             self._seq += 1
             rep = Replica(vehicle, self.worker, self._seq, time.time(),
-                          ckpt.dumps({vehicle: state}), final)
+                          ckpt.dumps({vehicle: state}), final, cut, handover)
         self._keep(rep)
         self.t.put(self.key + vehicle, self._envelope(rep), block=True, remote_only=True)
         return rep
@@ -112,7 +117,8 @@ class CheckpointReplica:
     def _envelope(self, rep: Replica) -> bytes:
         return msgpack.packb({"v": 1, "fleet": self.fleet, "vehicle": rep.vehicle,
                               "worker": rep.worker, "seq": rep.seq, "t_wall": rep.t_wall,
-                              "final": rep.final, "ckpt": rep.data}, use_bin_type=True)
+                              "final": rep.final, "handover": rep.handover, "cut": rep.cut,
+                              "ckpt": rep.data}, use_bin_type=True)
 
     def _keep(self, rep: Replica) -> None:
         with self._lock:
@@ -123,8 +129,11 @@ class CheckpointReplica:
     def _decode(self, data: bytes) -> Replica | None:
         try:
             m = msgpack.unpackb(data, raw=False)
+            cut = m.get("cut")
             rep = Replica(str(m["vehicle"]), str(m["worker"]), int(m["seq"]),
-                          float(m["t_wall"]), bytes(m["ckpt"]), m.get("final") is True)
+                          float(m["t_wall"]), bytes(m["ckpt"]), m.get("final") is True,
+                          bytes(cut) if isinstance(cut, bytes) else None,
+                          m.get("handover") is True)
             if m.get("fleet") != self.fleet:
                 raise ValueError(f"fleet {m.get('fleet')!r}")
             rep.state()  # schema and checksum, before it may replace a good one

@@ -111,6 +111,20 @@ class MemInbox:
             self.nbytes -= len(item[1])
             return item
 
+    def drop_through(self, match: Any) -> int | None:
+        """Drop the waiting samples up to and including the first for which ``match(key,
+        payload)`` is true and return how many; None (nothing dropped) if none matches."""
+        with self._cond:
+            for i, item in enumerate(self._items):
+                if item is not self._WAKE and match(*item):
+                    for _ in range(i + 1):
+                        it = self._items.popleft()
+                        if it is not self._WAKE:
+                            self.nbytes -= len(it[1])
+                    self._cond.notify_all()
+                    return i + 1
+        return None
+
     def try_recv(self) -> tuple[str, bytes] | None:
         return self._pop(False)
 

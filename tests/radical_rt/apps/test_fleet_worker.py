@@ -6,6 +6,7 @@ ownership tokens for one vehicle at once."""
 from __future__ import annotations
 
 import threading
+import time
 
 import msgpack
 import pytest
@@ -96,7 +97,7 @@ def test_join_and_crash(fleet, archives):
     c = add("w-c")  # a join: the vehicles c now scores highest on move from their old owner
     wait_for(lambda: _settled([a, b, c]), 20, what="the join to settle")
     moved = [t for t in c.takeovers]
-    assert moved and all(t["source"] == "replica" and t["replica_worker"] in ("w-a", "w-b")
+    assert moved and all(t["source"] == "handover" and t["replica_worker"] in ("w-a", "w-b")
                          and not t.get("loss_flagged") for t in moved)  # handed over: no loss
     for t in moved:  # from the old owner's final checkpoint: the state it had when it let go
         assert _status(client, t["vehicle"])["t"] == pytest.approx(t_before[t["vehicle"]])
@@ -112,3 +113,53 @@ def test_join_and_crash(fleet, archives):
         assert st["node"]["fleet"]["source"] == "replica" and st["node"]["fleet"]["lost_s"] >= 0
         assert t["loss_flagged"] and st["counters"]["input_gaps"] == 1  # the crash's loss
     assert watch.most == 1  # never two owners of one vehicle at once (claims are not owners)
+
+
+def _engine_view(sp) -> tuple:
+    e = sp.engine
+    return (e.t, e.mode, e.q.tolist(), e.estimates(), e.sigmas(), sp.counters())
+
+
+def test_a_join_and_a_clean_leave_hand_over_bit_for_bit(fleet, archives):
+    """Inputs keep flowing while a worker joins and later leaves: every vehicle ends exactly
+    where one node fed the same messages ends (nothing lost, nothing fed twice)."""
+    bus, client, watch, add = fleet
+    msgs = input_messages(archives["a60"])[:2400]
+    ref = {}
+    for v in VEHICLES:
+        sp = _make(v)
+        for topic, _, data in msgs:
+            sp.feed(topic, data)
+        ref[v] = _engine_view(sp)
+    a = add("w-a")
+    wait_for(lambda: _settled([a]), 20, what="the first worker")
+    done = threading.Event()
+
+    def publish() -> None:
+        for i, (topic, _, data) in enumerate(msgs):
+            for v in VEHICLES:
+                client.put(f"radical/{v}/{topic}", data, block=True)
+            if i % 20 == 0:
+                time.sleep(0.01)
+        done.set()
+
+    th = threading.Thread(target=publish)
+    th.start()
+    time.sleep(0.5)
+    b = add("w-b")  # joins while inputs flow
+    wait_for(lambda: _settled([a, b]), 20, what="the join")
+    time.sleep(0.3)
+    b.stop()  # leaves while inputs flow
+    wait_for(lambda: _settled([a]), 20, what="the leave")
+    th.join()
+    assert done.is_set()
+    for node, _ in a.nodes.values():
+        assert node.wait_idle(30)
+    moved = {t["vehicle"] for t in b.takeovers}
+    assert moved and all(t["source"] == "handover" for t in b.takeovers)
+    back = [t for t in a.takeovers if t["vehicle"] in moved and t["replica_worker"] == "w-b"]
+    assert {t["vehicle"] for t in back} == moved and all(t["source"] == "handover" for t in back)
+    for v in VEHICLES:
+        node, _ = a.nodes[v]
+        assert _engine_view(node.vehicle.sp) == ref[v], v
+    assert watch.most == 1
