@@ -118,7 +118,6 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
     from mcap.writer import CompressionType, IndexType, Writer
 
     from monitors.fox_convert import DERIVED_SCHEMAS
-
     from radical_rt.io.archive import ArchiveError, ArchiveReader
 
     if not os.path.exists(path_in):
