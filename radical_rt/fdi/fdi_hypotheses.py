@@ -204,8 +204,9 @@ class HypothesisBank:
         if self._thr.shape[0] <= self.k + rows:
             self._thr, self._kargs = consistency_thresholds(self.k + rows), None
         i0 = gbuf.blocks()[3]
-        if self._kargs is None or self._sig is not self._packed_sig:
-            self._pack()
+        kargs = self._kargs
+        if kargs is None or self._sig is not self._packed_sig:
+            kargs = self._pack()
         bi, bf = self._bi, self._bf
         bi[BI_ON], bi[BI_I0], bi[BI_END], bi[BI_K] = 1, i0, hist_end, self.k
         bi[BI_STEPS] = bi[BI_BAD] = 0
@@ -215,14 +216,14 @@ class HypothesisBank:
             bi[BI_PHI_COL], bi[BI_LAT_COL] = self.phi_col, self.lat_col
             bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
             bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
-        return self._kargs
+        return kargs
 
-    def _pack(self) -> None:
+    def _pack(self) -> tuple:
         """Move the arrays of the release's tuple into new flat buffers (:func:`pack_bank`) and
         keep the views of them as the bank's arrays (copies, e.g. a checkpoint's, are packed again
-        at their first use: :meth:`__getstate__`)."""
+        at their first use: :meth:`__getstate__`). Returns the buffers."""
         pw = self._pw
-        self._kargs, v = pack_bank({
+        kargs, v = pack_bank({
             "masks": self.masks, "xp": self.xp, "A": self.A, "Minv": self.Minv, "Gp": self.Gp,
             "N_none": self.N_none, "q": self.q, "omega": self.omega, "tlast": self.tlast,
             "undetermined": self.undetermined, "Phi_aa": self.Phi_aa, "Phi_ap": self.Phi_ap,
@@ -238,9 +239,10 @@ class HypothesisBank:
         self._pw = (v["par_y"], v["par_t"], v["acc_i"], v["acc_f"], v["th_acc"])
         self._w33, self._w3p, self._w4 = v["W33"], v["W3p"], v["W4"]
         self._sig, self._thr, self._bi, self._bf = v["st_sigma"], v["thr"], v["bi"], v["bf"]
-        self._packed_sig = self._sig
+        self._packed_sig, self._kargs = self._sig, kargs
+        return kargs
 
-    _packed_sig = None  # the st_sigma view of the packed buffers
+    _packed_sig: np.ndarray | None = None  # the st_sigma view of the packed buffers
 
     def __getstate__(self) -> dict[str, Any]:
         """Copies (copy.deepcopy, pickle) copy each array on its own: they are packed into
