@@ -72,7 +72,8 @@ class LoopShell:
                 hist = fdi.gbuf
                 bk = bank.kernel_args(self, hist, hist.end + (z - a if g_end >= 0 else 0),
                                       n_ev - e, fdi.llr_threshold(self))
-                g_f, g_i, g_b = hist.blocks()[:3]  # (the bank's history; those of the copy above)
+                # the bank reads the FDI history (the copy's blocks above when there is one)
+                g_f, g_i, g_b = hist.blocks()[:3]
             b = self._loop_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
