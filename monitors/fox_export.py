@@ -25,14 +25,16 @@ import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 from tqdm import tqdm
 
-from monitors.fox_convert import DERIVED_SCHEMAS, FoxgloveConverter, siru_known_schema
 from monitors.fox_schema import SchemaBuilder, known_schema
 from radical_rt.io.outpaths import output_file
+
+if TYPE_CHECKING:  # (the converter imports scipy: only when the command runs, not for the parser)
+    from monitors.fox_convert import FoxgloveConverter
 
 #: topics whose shape is fixed by the contract: their schema is inferred from the first messages
 _FIXED = {"/siru", "/st1", "/st2", "/temp", "/tlm/small", "/truth/attitude", "/truth/siru_time"}
@@ -61,6 +63,8 @@ def _schema_title(topic: str) -> str:
 def converter_for(reader: Any) -> FoxgloveConverter:
     """The converter of an archive: attitude from the fastest telemetry topic, calibration from
     the richest (so that the derived channels do not depend on channel interleaving)."""
+    from monitors.fox_convert import FoxgloveConverter
+
     have = [t for t in ("/tlm/small", "/tlm/medium", "/tlm/large") if reader.message_counts.get(t)]
     cal = [t for t in ("/tlm/large", "/tlm/medium") if t in have]
     return FoxgloveConverter(att_topic=have[0] if have else None,
@@ -69,6 +73,8 @@ def converter_for(reader: Any) -> FoxgloveConverter:
 
 def build_schemas(reader: Any, progress: bool = False) -> dict[str, dict[str, Any]]:
     """Pass 1: topic -> JSON schema for every output topic (source channels and derived ones)."""
+    from monitors.fox_convert import DERIVED_SCHEMAS, siru_known_schema
+
     conv = converter_for(reader)
     builders: dict[str, SchemaBuilder] = {}
     total = sum(reader.message_counts.values())
@@ -111,6 +117,7 @@ def export_foxglove(path_in: str, path_out: str, progress: bool = False) -> dict
     """Write the Foxglove archive; returns {"messages": {topic: n}, "skipped": n, "path": …}."""
     from mcap.writer import CompressionType, IndexType, Writer
 
+    from monitors.fox_convert import DERIVED_SCHEMAS
     from radical_rt.io.archive import ArchiveError, ArchiveReader
 
     if not os.path.exists(path_in):

@@ -37,6 +37,7 @@ from numba import njit
 
 _POLICY = dict(cache=True, fastmath=False, nogil=False, error_model="numpy")
 _PACKAGE = Path(__file__).resolve().parent
+_INSTALLED = _PACKAGE  # (_PACKAGE itself is replaced by the cache tests)
 _checked: set[Path] = set()
 
 
@@ -73,10 +74,24 @@ def _fingerprint(directory: Path) -> str:
     h = hashlib.sha256(f"{numba.__version__}|{sorted(_POLICY.items())}".encode())
     roots = {_PACKAGE} if directory.is_relative_to(_PACKAGE) else {_PACKAGE, directory}
     for d in sorted(roots):
-        for src in _kernel_sources(d):
-            h.update(str(src.relative_to(d)).encode())
-            h.update(src.read_bytes())
+        for rel, text in (_package_tree() if d == _INSTALLED else _tree(d)):
+            h.update(rel)
+            h.update(text)
     return h.hexdigest()
+
+
+def _tree(d: Path) -> list[tuple[bytes, bytes]]:
+    """(path relative to d, contents) of the kernel modules of :func:`_kernel_sources`."""
+    return [(str(src.relative_to(d)).encode(), src.read_bytes()) for src in _kernel_sources(d)]
+
+
+def _package_tree(memo: list = []) -> list[tuple[bytes, bytes]]:  # noqa: B006 (the memo)
+    """:func:`_tree` of the installed package, read once per process: each directory of kernels
+    is checked at its first kernel, all at start-up (reading and scanning the tree took ≈ 10 ms a
+    time). (Not for another ``_PACKAGE``, which the cache tests build and edit.)"""
+    if not memo:
+        memo.append(_tree(_INSTALLED))
+    return memo[0]
 
 
 def _drop_stale_cache(source_file: str) -> None:

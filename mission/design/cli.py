@@ -26,7 +26,6 @@ from pathlib import Path
 from tqdm import tqdm
 
 from mission.design import analysis
-from mission.design.constraints import Pointing, check
 from radical_rt.contract.params import ParamError, ParamTable
 from radical_rt.io.outpaths import output_file
 
@@ -68,6 +67,7 @@ def _fail(msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from mission.design import plan as planmod
+    from mission.design.constraints import Pointing, check  # (scipy only when the command runs)
     from replayer.synth.schema import ScenarioError
 
     if args.target_scale <= 0 or args.record_dt <= 0:

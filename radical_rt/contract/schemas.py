@@ -20,7 +20,6 @@ from functools import cache
 from typing import Any
 
 import numpy as np
-from jsonschema import Draft202012Validator, validators
 
 __all__ = ["SCHEMAS", "schema_name", "validate", "validator_for"]
 
@@ -228,6 +227,8 @@ def _is_integer(checker: Any, inst: Any) -> bool:
         return True
     if isinstance(inst, np.floating):
         return bool(float(inst).is_integer())
+    from jsonschema import Draft202012Validator  # (loaded by then: see _validator_class)
+
     return Draft202012Validator.TYPE_CHECKER.is_type(inst, "integer")
 
 
@@ -235,18 +236,24 @@ def _is_boolean(_checker: Any, inst: Any) -> bool:
     return isinstance(inst, bool | np.bool_)
 
 
-# Accept numpy arrays and scalars as well as the lists/ints/floats msgpack decodes to.
-_Validator = validators.extend(
-    Draft202012Validator,
-    type_checker=Draft202012Validator.TYPE_CHECKER.redefine_many(
-        {"array": _is_array, "number": _is_number, "integer": _is_integer,
-         "boolean": _is_boolean}))
+@cache
+def _validator_class() -> Any:
+    """Draft 2020-12 accepting numpy arrays and scalars as well as the lists/ints/floats msgpack
+    decodes to (jsonschema is imported here, at the first validation: the archive layer imports
+    this module for SCHEMAS, and `radical process` validates nothing)."""
+    from jsonschema import Draft202012Validator, validators
+
+    return validators.extend(
+        Draft202012Validator,
+        type_checker=Draft202012Validator.TYPE_CHECKER.redefine_many(
+            {"array": _is_array, "number": _is_number, "integer": _is_integer,
+             "boolean": _is_boolean}))
 
 
 @cache
 def validator_for(topic: str) -> Any:
     """Cached jsonschema validator of a known topic (KeyError for an unknown one)."""
-    return _Validator(SCHEMAS[topic])
+    return _validator_class()(SCHEMAS[topic])
 
 
 def _column_errors(topic: str, msg: Any) -> list[str]:

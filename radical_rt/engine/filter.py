@@ -37,7 +37,6 @@ from radical_rt.engine.events import (
     EV_FLUSH,
     EV_NUMERIC,
     EV_RESET_PARITY,
-    EV_WINDOW_STATE,
 )
 from radical_rt.engine.excitation import ExcitationMonitor
 from radical_rt.engine.hooks import EngineHooks, NoHooks
@@ -301,7 +300,7 @@ class Engine(LoopShell, EngineState):
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, the convergence test and the mode after a close at event time t
         [s] (steps.window_state, the rule the compiled loop tests with)."""
-        self._event(EV_WINDOW_STATE, t=t)
+        self._window_state(t)
 
     def on_window(self, t: float) -> None:
         """The window hook (after a close where the compiled loop stops for it; t the event time

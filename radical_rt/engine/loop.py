@@ -82,7 +82,7 @@ from radical_rt.engine.steps import (
     warm_reset,
     window_state,
 )
-from radical_rt.fdi.fdi_bank import BI_ON, BK_BI, bank_sample
+from radical_rt.fdi.fdi_bank_pack import bank_on, bank_sample_packed
 from radical_rt.fdi.fdi_bank_propagate import append_rows
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.tracker_model import tracker_rows
@@ -263,8 +263,8 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
 @kernel
 def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F, bk, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1,
-                 s_last2, s_mode, s_flags, s_nis_par):
+                 clock_I, clock_F, bfb, bib, bbb, blay, s_t, s_locked, s_sig_t, wake_t, wake_e,
+                 s_att, s_last1, s_last2, s_mode, s_flags, s_nis_par):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -282,9 +282,10 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     sample-triggered telemetry from its final state (:func:`radical_rt.engine.gyro_queue.predict_pending`
     through the queue's samples z..q_end−1 and the clock's held-back read, clock state
     clock_I, clock_F): pred[0] ← 2, pred[1] ← its time, pred[2:6] ← q, pred[6:9] ← ω.
-    bk: the running FDI hypothesis bank's arrays (radical_rt.fdi.fdi_hypotheses.HypothesisBank.
-    kernel_args, layout fdi_bank.BK_SLOTS; idle_kernel_args with bi[BI_ON] = 0 when none runs here): each tracker event
-    the kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
+    bfb, bib, bbb, blay: the running FDI hypothesis bank's buffers (radical_rt.fdi.fdi_hypotheses.
+    HypothesisBank.kernel_args, radical_rt.fdi.fdi_bank_pack; idle_kernel_args with bi[BI_ON] = 0
+    when none runs here), its gyro history the blocks g_f, g_i, g_b: each tracker event the
+    kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at that sample.
     s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`)."""
@@ -294,7 +295,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
     innov, sig = E[_INNOV], E[_SIG]
-    bk_on = bk[BK_BI]  # the bank's integer controls bi (radical_rt.fdi.fdi_bank.BI_*)
+    bank = bank_on(bib, blay)  # a bank runs (its control bi[BI_ON])
     while e < n_ev:
         epoch = ev_f[e, 0]
         up = k
@@ -314,11 +315,10 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
             evo_f[e, 4 + r] = sig[r]
         # the bank takes every sample whose update the kernel completed, also one after which
         # the window hook has work (R_ON_WINDOW: Python then finds the bank caught up)
-        if (reason == R_DONE or reason == R_ON_WINDOW) and cnt[CNT_UPDATED] >= 0 and bk_on[
-                BI_ON] != 0 and bank_sample(
-                bk, ev_f[e, 1:5], ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
-                io[IO_SIG_T], E[_W],
-                E[_UAX], E[_VAX]):
+        if (reason == R_DONE or reason == R_ON_WINDOW) and cnt[CNT_UPDATED] >= 0 and bank \
+                and bank_sample_packed(g_f, g_i, g_b, bfb, bib, bbb, blay, ev_f[e, 1:5],
+                                       ev_i[e, 1], epoch, R1 if j == 1 else R2, j == 2,
+                                       io[IO_SIG_T], E[_W], E[_UAX], E[_VAX]):
             reason = R_ON_WINDOW  # the bank's decision is due: Python takes it (on_window)
         if reason != R_DONE:
             return reason, k, e, 1

@@ -19,7 +19,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.engine import loop as lp
 from radical_rt.engine import loop_layout as FL
 from radical_rt.engine import steps
-from radical_rt.engine.events import engine_event
+from radical_rt.engine.events import EV_WINDOW_STATE, engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
@@ -72,12 +72,14 @@ class LoopShell:
                 hist = fdi.gbuf
                 bk = bank.kernel_args(self, hist, hist.end + (z - a if g_end >= 0 else 0),
                                       n_ev - e, fdi.llr_threshold(self))
+                # the bank reads the FDI history (the copy's blocks above when there is one)
+                g_f, g_i, g_b = hist.blocks()[:3]
             b = self._loop_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk, b[0], b[1], b[2],
-                b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10])
+                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3],
+                b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10])
             if bank is not None:
                 bank.kernel_done()
             if g_end >= 0:
@@ -205,6 +207,21 @@ class LoopShell:
                         self._io, self._cnt, b[0], b[1], b[2], b[5], b[6], b[7],
                         b[8], b[9], b[10])
         self._loop_end()
+
+    def _window_state(self, t: float) -> None:
+        """:meth:`_event` EV_WINDOW_STATE (the flags and the mode after a close at event time t
+        [s], steps.window_state) for the window hook, without the wake times, the collaborators'
+        settings and the read-back of every counter: the step reads the attitude flag, the last
+        valid epochs, the flags and the factors, and changes only the flags and the mode. The
+        other scalars are loaded as they stand (σ_t as the last call left it)."""
+        last, io, cnt = self.last_valid_st, self._io, self._cnt
+        engine_event(EV_WINDOW_STATE, 0, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
+                     io, cnt, self.t, self.locked_since, float(io[FL.IO_SIG_T]),
+                     1.0 if self.att_valid else 0.0, last.get(1, -math.inf),
+                     last.get(2, -math.inf), MODE_CODE[self.mode], int(self.flags),
+                     self.nis_sum.get("parity", 0.0))
+        self.flags = int(cnt[FL.CNT_FLAGS])
+        self.mode = _MODE_NAME[float(io[FL.IO_MODE])]
 
     def _loop_config(self) -> None:
         """Scalar parameters and io arrays of the kernel (after every parameter change)."""

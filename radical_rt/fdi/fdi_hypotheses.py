@@ -30,14 +30,10 @@ from radical_rt.fdi.fdi_bank import (
     BI_ON,
     BI_PHI_COL,
     BI_STEPS,
-    BK_BR,
-    BK_F,
-    BK_SIG,
-    BK_SLOTS,
-    BK_ST,
     bank_run,
     decide,
 )
+from radical_rt.fdi.fdi_bank_pack import idle_buffers, pack_bank
 from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.kernels import ud
@@ -194,33 +190,23 @@ class HypothesisBank:
 
     # ------------------------------------------------------------------ inside the compiled release
     def kernel_args(self, eng, gbuf, hist_end: int, rows: int, llr_min: float) -> tuple:
-        """The tuple bk of :func:`radical_rt.fdi.fdi_bank.bank_sample` (the compiled release runs the
-        bank on its valid tracker samples, see radical_rt.engine.loop): the gyro history's blocks
-        (rows gbuf.i0..hist_end−1 in use by then; the release appends its samples first), the
-        stacked state and work arrays, phi, st_sigma, the consistency thresholds for up to
-        ``rows`` more samples, and the controls bi, bf (BI_*, BF_*; BI_STEPS, BI_BAD zeroed).
-        Only valid while the bank is caught up with the monitor's tracker buffer."""
+        """The bank's buffers (bfb, bib, bbb, blay) for the compiled release, which runs the bank
+        on its valid tracker samples (radical_rt.engine.loop) with the tuple bk of
+        :func:`radical_rt.fdi.fdi_bank.bank_sample` rebuilt from them and from the gyro history's
+        blocks (:mod:`radical_rt.fdi.fdi_bank_pack`; rows gbuf.i0..hist_end−1 in use by then, the
+        release appends its samples first): the stacked state and work arrays, phi, st_sigma,
+        the consistency thresholds for up to ``rows`` more samples, and the controls bi, bf
+        (BI_*, BF_*; BI_STEPS, BI_BAD zeroed). Only valid while the bank is caught up with the
+        monitor's tracker buffer."""
         si = eng.si
         if si.st_sigma is not self._sig_src:
             self._sig_src, self._sig = si.st_sigma, np.asarray(si.st_sigma, dtype=np.float64)
         if self._thr.shape[0] <= self.k + rows:
             self._thr, self._kargs = consistency_thresholds(self.k + rows), None
-        f, st, br, i0, _end = gbuf.blocks()
-        bk = self._kargs
-        if (bk is None or bk[BK_F] is not f or bk[BK_ST] is not st or bk[BK_BR] is not br
-                or bk[BK_SIG] is not self._sig):
-            pw = self._pw
-            arrays = {
-                "f": f, "st": st, "br": br, "masks": self.masks, "xp": self.xp, "A": self.A,
-                "Minv": self.Minv, "Gp": self.Gp, "N_none": self.N_none, "q": self.q,
-                "omega": self.omega, "tlast": self.tlast, "undetermined": self.undetermined,
-                "Phi_aa": self.Phi_aa, "Phi_ap": self.Phi_ap, "Q_aa": self.Q_aa, "Ptt": self.Ptt,
-                "Ptp": self.Ptp, "Ppp": self.Ppp, "ll": self.ll, "nis": self.nis,
-                "nis_k": self.nis_k, "logdet_k": self.logdet_k, "par_y": pw[0], "par_t": pw[1],
-                "acc_i": pw[2], "acc_f": pw[3], "th_acc": pw[4], "W33": self._w33,
-                "W3p": self._w3p, "W4": self._w4, "phi": self.phi, "st_sigma": self._sig,
-                "thr": self._thr, "bi": self._bi, "bf": self._bf}
-            bk = self._kargs = tuple(arrays[name] for name, _nd, _dt in BK_SLOTS)
+        i0 = gbuf.blocks()[3]
+        kargs = self._kargs
+        if kargs is None or self._sig is not self._packed_sig:
+            kargs = self._pack()
         bi, bf = self._bi, self._bf
         bi[BI_ON], bi[BI_I0], bi[BI_END], bi[BI_K] = 1, i0, hist_end, self.k
         bi[BI_STEPS] = bi[BI_BAD] = 0
@@ -230,7 +216,40 @@ class HypothesisBank:
             bi[BI_PHI_COL], bi[BI_LAT_COL] = self.phi_col, self.lat_col
             bf[BF_TAU], bf[BF_REF_STARS], bf[BF_GATE] = self.tau, si.st_ref_stars, NIS_CAP
             bf[BF_LLR_MIN], bf[BF_ARW] = llr_min, si.arw_var_per_s
-        return bk
+        return kargs
+
+    def _pack(self) -> tuple:
+        """Move the arrays of the release's tuple into new flat buffers (:func:`pack_bank`) and
+        keep the views of them as the bank's arrays (copies, e.g. a checkpoint's, are packed again
+        at their first use: :meth:`__getstate__`). Returns the buffers."""
+        pw = self._pw
+        kargs, v = pack_bank({
+            "masks": self.masks, "xp": self.xp, "A": self.A, "Minv": self.Minv, "Gp": self.Gp,
+            "N_none": self.N_none, "q": self.q, "omega": self.omega, "tlast": self.tlast,
+            "undetermined": self.undetermined, "Phi_aa": self.Phi_aa, "Phi_ap": self.Phi_ap,
+            "Q_aa": self.Q_aa, "Ptt": self.Ptt, "Ptp": self.Ptp, "Ppp": self.Ppp, "ll": self.ll,
+            "nis": self.nis, "nis_k": self.nis_k, "logdet_k": self.logdet_k, "par_y": pw[0],
+            "par_t": pw[1], "acc_i": pw[2], "acc_f": pw[3], "th_acc": pw[4], "W33": self._w33,
+            "W3p": self._w3p, "W4": self._w4, "phi": self.phi, "st_sigma": self._sig,
+            "thr": self._thr, "bi": self._bi, "bf": self._bf})
+        for name in ("masks", "xp", "A", "Minv", "Gp", "N_none", "q", "omega", "tlast",
+                     "undetermined", "Phi_aa", "Phi_ap", "Q_aa", "Ptt", "Ptp", "Ppp", "ll", "nis",
+                     "nis_k", "logdet_k", "phi"):
+            setattr(self, name, v[name])
+        self._pw = (v["par_y"], v["par_t"], v["acc_i"], v["acc_f"], v["th_acc"])
+        self._w33, self._w3p, self._w4 = v["W33"], v["W3p"], v["W4"]
+        self._sig, self._thr, self._bi, self._bf = v["st_sigma"], v["thr"], v["bi"], v["bf"]
+        self._packed_sig, self._kargs = self._sig, kargs
+        return kargs
+
+    _packed_sig: np.ndarray | None = None  # the st_sigma view of the packed buffers
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copies (copy.deepcopy, pickle) copy each array on its own: they are packed into
+        buffers of their own at their first use in a release."""
+        state = self.__dict__.copy()
+        state["_kargs"] = state["_packed_sig"] = None
+        return state
 
     def kernel_done(self) -> int:
         """Take back what the compiled release did with :meth:`kernel_args`' tuple: the tracker
@@ -293,11 +312,9 @@ class HypothesisBank:
 
 def idle_kernel_args() -> tuple:
     """A stand-in for :meth:`HypothesisBank.kernel_args` when no bank runs in the compiled
-    release: arrays of the kinds BK_SLOTS declares (rank, dtype, C order), empty, except the
-    controls bi (8,) and bf (5,), with BI_ON = 0."""
-    sizes = {"bi": 8, "bf": 5}
-    return tuple(np.zeros((sizes[name],) if name in sizes else (0,) * nd, dtype)
-                 for name, nd, dtype in BK_SLOTS)
+    release: the buffers of empty arrays of the kinds BK_SLOTS declares, except the controls
+    bi (8,) and bf (5,), with BI_ON = 0 (:func:`radical_rt.fdi.fdi_bank_pack.idle_buffers`)."""
+    return idle_buffers()
 
 
 __all__ = ["CONSISTENCY_P", "NIS_CAP", "HypothesisBank", "idle_kernel_args"]

@@ -19,8 +19,6 @@ import sys
 from radical_rt.io.archive import ArchiveError
 from radical_rt.io.outpaths import output_file
 
-from .api import synthesize
-from .scenario import print_default
 from .schema import ScenarioError
 
 #: the subcommand's line in `radical --help`
@@ -48,6 +46,9 @@ def _fail(msg: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run `radical synth`; 0 on success, 2 on a bad scenario or arguments."""
+    from .api import synthesize  # (the simulator and scipy only when the command runs)
+    from .scenario import print_default
+
     try:
         if args.print_default is not None:
             sys.stdout.write(print_default(args.print_default or args.scenario))

@@ -26,6 +26,7 @@ import pytest
 from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.fdi.fdi_bank import BK_SLOTS
+from radical_rt.fdi.fdi_bank_pack import PACKED, views
 from radical_rt.fdi.fdi_hypotheses import HypothesisBank, idle_kernel_args
 from radical_rt.fdi.monitor import FaultMonitor
 from tests.oracles.fdi_bank_py import PythonHypothesisBank
@@ -191,15 +192,18 @@ def test_bank_in_the_compiled_release_decides_at_the_same_sample(name, tmp_path,
 
     def recorded(self, *a):
         bk = kernel_args(self, *a)
-        kinds.add(tuple((x.ndim, str(x.dtype), x.flags.c_contiguous) for x in bk))
+        kinds.add(tuple((x.ndim, str(x.dtype), x.flags.c_contiguous) for x in views(bk).values()))
         return bk
 
     monkeypatch.setattr(HypothesisBank, "kernel_args", recorded)
     sp_k, calls_k, steps_k = _bank_calls(path, monkeypatch, in_kernel=True)
     monkeypatch.setattr(HypothesisBank, "kernel_args", kernel_args)
-    # the tuple follows its one declaration (fdi_bank.BK_SLOTS), as the idle stand-in does
-    declared = tuple((nd, dt, True) for _name, nd, dt in BK_SLOTS)
-    idle = tuple((x.ndim, str(x.dtype), x.flags.c_contiguous) for x in idle_kernel_args())
+    # the packed arrays follow their one declaration (fdi_bank.BK_SLOTS, but the history blocks),
+    # as the idle stand-in's do
+    assert BK_SLOTS[3:] == PACKED
+    declared = tuple((nd, dt, True) for _name, nd, dt in PACKED)
+    idle = tuple((x.ndim, str(x.dtype), x.flags.c_contiguous)
+                 for x in views(idle_kernel_args()).values())
     assert kinds == {declared} and idle == declared, kinds
     sp_p, calls_p, steps_p = _bank_calls(path, monkeypatch, in_kernel=False)
     f_k, f_p = sp_k.engine.fdi, sp_p.engine.fdi
