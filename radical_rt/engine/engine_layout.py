@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from radical_rt._jit import inline_kernel
+from radical_rt.kernels.flat_views import view1, view2
 
 FLOAT, INT, BOOL = 0, 1, 2  # buffer codes: fb, ib, bb
 BUFFER_DTYPES = ("float64", "int64", "bool")
@@ -69,16 +70,6 @@ def slot_problems(slot: Slot, array) -> list[str]:
     return probs
 
 
-@inline_kernel
-def _v1(buf, lay, i):
-    return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
-
-
-@inline_kernel
-def _v2(buf, lay, i):
-    o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
-    return buf[o:o + r * c].reshape((r, c))
-
 
 def _unpack_source() -> str:
     views = ", ".join(f"_v{s.ndim}({('fb', 'ib', 'bb')[s.buffer]}, lay, {i})"
@@ -87,7 +78,7 @@ def _unpack_source() -> str:
 
 
 def _generated_unpack():
-    namespace = {"_v1": _v1, "_v2": _v2}
+    namespace = {"_v1": view1, "_v2": view2}
     exec(compile(_unpack_source(), __file__, "exec"), namespace)  # noqa: S102 (source: SLOTS)
     fn = namespace["unpack"]
     fn.__doc__ = ("The array tuple E (one view per entry of SLOTS) from the engine's packed "

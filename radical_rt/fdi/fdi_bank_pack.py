@@ -18,6 +18,7 @@ import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.fdi.fdi_bank import BI_ON, BK_SLOTS, bank_sample
+from radical_rt.kernels.flat_views import view1, view2, view3
 
 #: the packed slots: every entry of BK_SLOTS but the history blocks, in BK_SLOTS order
 PACKED = BK_SLOTS[3:]
@@ -66,23 +67,6 @@ def idle_buffers() -> tuple:
                       for name, nd, dt in PACKED})[0]
 
 
-@inline_kernel
-def _w1(buf, lay, i):
-    return buf[lay[i, 0]:lay[i, 0] + lay[i, 1]]
-
-
-@inline_kernel
-def _w2(buf, lay, i):
-    o, r, c = lay[i, 0], lay[i, 1], lay[i, 2]
-    return buf[o:o + r * c].reshape((r, c))
-
-
-@inline_kernel
-def _w3(buf, lay, i):
-    o, a, r, c = lay[i, 0], lay[i, 1], lay[i, 2], lay[i, 3]
-    return buf[o:o + a * r * c].reshape((a, r, c))
-
-
 def _unpack_source() -> str:
     bufs = {"float64": "bfb", "int64": "bib", "bool": "bbb"}
     items = ", ".join(f"_w{nd}({bufs[dt]}, blay, {i})" for i, (_n, nd, dt) in enumerate(PACKED))
@@ -90,7 +74,7 @@ def _unpack_source() -> str:
 
 
 def _generated_unpack():
-    namespace = {"_w1": _w1, "_w2": _w2, "_w3": _w3}
+    namespace = {"_w1": view1, "_w2": view2, "_w3": view3}
     exec(compile(_unpack_source(), __file__, "exec"), namespace)  # noqa: S102 (source: BK_SLOTS)
     fn = namespace["bank_unpack"]
     fn.__doc__ = ("The tuple bk of fdi_bank.bank_sample (BK_SLOTS order) from the history blocks "
