@@ -102,6 +102,8 @@ class FleetWorker:
         self.checkpoint_every_s = checkpoint_every_s
         self.claim_settle_s = claim_settle_s  # ≫ the time a token takes to reach every worker
         self.handover_wait_s = handover_wait_s
+        self.resync_s = 1.0  # after a lost link: wait this long for the others' tokens
+        self._resync_until = 0.0
         self.prefix = fleet_prefix(fleet)
         self.nodes: dict[str, tuple[FleetNode, Any]] = {}  # served: vehicle → (node, owner token)
         self.holding: dict[str, tuple[FleetNode, Any]] = {}  # inputs held: (node, hold token)
@@ -180,7 +182,12 @@ class FleetWorker:
         if not getattr(self.t, "connected", lambda: True)():
             self._fence()
             return
-        self.fenced = False
+        if self.fenced:  # the link is back: let the others' tokens arrive before acting
+            self.fenced = False
+            self._resync_until = time.monotonic() + self.resync_s
+            log.info("fleet %s: worker %s has its link again", self.fleet, self.id)
+        if time.monotonic() < self._resync_until:
+            return
         target = set(self.owned())
         self._let_go(target)
         for v in sorted(set(self.holding) - target):
@@ -196,21 +203,23 @@ class FleetWorker:
         claims = {v: self.t.liveliness_token(self.prefix + f"claim/{v}/{self.id}") for v in free}
         self._stop.wait(self.claim_settle_s)
         for v, claim in claims.items():
-            if not (self._stop.is_set() or self.view.outranked(v)):
+            # never take a vehicle another worker serves; of rival claims the higher score wins
+            if not (self._stop.is_set() or self.view.others("owner", v) or self.view.outranked(v)):
                 self._take(v)
             claim.undeclare()  # (after the ownership token of a vehicle taken)
 
     def _let_go(self, target: set[str]) -> None:
         """Release the vehicles no longer owned: at a cut once the next owner holds their
-        inputs, without one after handover_wait_s; at once when outranked."""
+        inputs, without one after handover_wait_s; at once when another worker serves it with a
+        higher score (two owners after a healed partition: the lower one yields)."""
         now = time.monotonic()
         for v in sorted(self.nodes):
-            if v in target and not self.view.outranked(v):
+            rival = self.view.outranked(v, ("owner",))
+            if v in target and not rival:
                 self._unowned_since.pop(v, None)
                 continue
             since = self._unowned_since.setdefault(v, now)
-            if self.view.others("hold", v) or self.view.outranked(v) \
-                    or now - since >= self.handover_wait_s:
+            if self.view.others("hold", v) or rival or now - since >= self.handover_wait_s:
                 self._release(v)
                 self._unowned_since.pop(v, None)
 

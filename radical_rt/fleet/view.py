@@ -54,10 +54,12 @@ class FleetView:
         """The other workers that serve or claim ``vehicle``."""
         return self.others("owner", vehicle) | self.others("claim", vehicle)
 
-    def outranked(self, vehicle: str) -> bool:
-        """Another worker serves or claims ``vehicle`` with a higher rendezvous score."""
+    def outranked(self, vehicle: str, kinds: tuple[str, ...] = ("owner", "claim")) -> bool:
+        """Another worker holds a token of ``kinds`` for ``vehicle`` with a higher rendezvous
+        score than ours."""
         mine = score(self.me, vehicle)
-        return any(score(o, vehicle) > mine for o in self.taken_by_others(vehicle))
+        rivals = set().union(*(self.others(k, vehicle) for k in kinds))
+        return any(score(o, vehicle) > mine for o in rivals)
 
     def last_owner(self, vehicle: str) -> str | None:
         with self._lock:
