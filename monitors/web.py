@@ -351,10 +351,14 @@ def serve(store: LatestStore, vehicle: str | None, port: int, source: Any = None
     from bokeh.application.handlers.function import FunctionHandler
     from bokeh.server.server import Server
 
+    from monitors.web_fleet import make_fleet_document_factory
+
     hub = Hub(store, keep=keep)
     app = Application(FunctionHandler(make_document_factory(hub, vehicle, period_ms, stale_s)))
+    fleet = Application(FunctionHandler(make_fleet_document_factory(hub)))
     origins = [f"127.0.0.1:{port}", f"localhost:{port}"]
-    server = Server({"/": app}, port=port, address="127.0.0.1", allow_websocket_origin=origins)
+    server = Server({"/": app, "/fleet": fleet}, port=port, address="127.0.0.1",
+                    allow_websocket_origin=origins)
     server.start()
     loop = server.io_loop
     from tornado.ioloop import PeriodicCallback
@@ -366,7 +370,8 @@ def serve(store: LatestStore, vehicle: str | None, port: int, source: Any = None
         loop.add_callback(loop.stop)
 
     signal.signal(signal.SIGTERM, stop)
-    print(f"radical monitor web: serving http://127.0.0.1:{port}/", flush=True)
+    print(f"radical monitor web: serving http://127.0.0.1:{port}/ (fleet page: "
+          f"http://127.0.0.1:{port}/fleet)", flush=True)
     try:
         loop.start()
     except KeyboardInterrupt:

@@ -237,6 +237,15 @@ def test_web_dashboard_live_in_chromium(tmp_path):
             time.sleep(1.0)
             page.screenshot(path=str(ARTIFACTS / "monitor_web_params.png"), full_page=True)
             _check_current_values_boresight_history_and_stale(page, pub, log)
+            # the fleet page: one row per vehicle, from the same packets (no fleet here: "-")
+            fleet = browser.new_page(viewport={"width": 1200, "height": 400})
+            fleet.on("pageerror", lambda e: errors.append(str(e)))
+            fleet.goto(url + "fleet", wait_until="load")
+            fleet.wait_for_function("""() => { const d = window.Bokeh && Bokeh.documents[0];
+                const m = d && d.get_model_by_name('fleet');
+                return m && m.text.includes('1 vehicle(s)'); }""", timeout=30000)
+            text = fleet.evaluate("() => Bokeh.documents[0].get_model_by_name('fleet').text")
+            assert f"<b>{VEHICLE}</b>" in text and "converging" in text, text
             assert not external, f"non-loopback requests: {external}"
             assert not errors, f"browser errors: {errors}"
             (ARTIFACTS / "monitor_web.json").write_text(json.dumps(
