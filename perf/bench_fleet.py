@@ -30,7 +30,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-PROFILES = {"smoke": {"vehicles": 2, "kills": 1, "stream_s": 40.0},
+PROFILES = {"smoke": {"vehicles": 2, "kills": 1, "stream_s": 45.0},
             "quick": {"vehicles": 6, "kills": 3, "stream_s": 120.0},
             "full": {"vehicles": 12, "kills": 8, "stream_s": 300.0}}
 FLEET = "fb"

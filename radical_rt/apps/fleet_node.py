@@ -47,14 +47,14 @@ class FleetNode(FilterNode):
         self.last_fed: bytes | None = None
         self._cut_seen = threading.Event()
 
-    def _take(self, key: str, data: bytes) -> None:
+    def take_input(self, key: str, data: bytes) -> None:
         topic = key[len(self.vehicle.prefix):]
         if topic == self.CUT:
             self._cut_seen.set()
             return
         if self._cut_seen.is_set():
             return  # after the cut: the next owner feeds it
-        super()._take(key, data)
+        super().take_input(key, data)
         if topic in _FED:
             self.last_fed = input_digest(topic, data)
 

@@ -268,13 +268,13 @@ class FilterNode:
                     if item is None:
                         continue
                 self._cmdq.run()
-                self._take(*item)
+                self.take_input(*item)
                 self._housekeeping()
             while self._mono() < self._drain_until:  # stopping: finish what is queued
                 item = inbox.try_recv()
                 if item is None:
                     break
-                self._take(*item)
+                self.take_input(*item)
             self._idle = True
             self._housekeeping(checkpoint=False)
         except BaseException as exc:  # pragma: no cover - a bug; keep it visible
@@ -289,8 +289,9 @@ class FilterNode:
             if self._idle and self._inbox is not None:
                 self._inbox.wake()
 
-    def _take(self, key: str, data: bytes) -> None:
-        """One input sample from the FIFO: route it to its vehicle and feed it."""
+    def take_input(self, key: str, data: bytes) -> None:
+        """One input sample from the FIFO (filter loop thread): route it to its vehicle and feed
+        it. A subclass may extend it (a fleet's handover: :mod:`radical_rt.apps.fleet_node`)."""
         t_recv = time.monotonic_ns() if self.timing is not None else 0
         v = self.vehicles.get(key.split("/", 2)[1])
         if v is None:  # a vehicle this node does not serve

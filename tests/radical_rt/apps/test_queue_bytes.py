@@ -41,13 +41,13 @@ def test_slow_consumer_flood_is_byte_bounded_and_counted():
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
     nt = ZenohTransport("peer", listen=[ep])
     node = FilterNode(nt, build_processors(["qb"]), queue_bytes=BUDGET, queue_wait_s=0.01)
-    take = node._take
+    take = node.take_input
 
     def slow_take(key: str, data: bytes) -> None:  # a consumer far slower than the flood
         time.sleep(0.02)
         take(key, data)
 
-    node._take = slow_take
+    node.take_input = slow_take
     node.start()
     client = ZenohTransport("peer", connect=[ep])
     junk = b"\xc1" * PAYLOAD  # never-used msgpack byte: each one rejected as undecodable
