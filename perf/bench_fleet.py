@@ -154,6 +154,7 @@ def _one_round(h: Harness, out: dict[str, list[float]]) -> None:
     time.sleep(2.0)  # packets after the handover
     out["handover_gap_s"] += [h.longest_gap(v, t_join, time.monotonic())
                               for v in newcomer["serving"]]
+    out["joined"].append(len(newcomer["serving"]))  # (hashing may give a joiner nothing)
 
 
 def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, Any]:
@@ -164,7 +165,8 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
         work = Path(tmp)
         build_stream(cfg["stream_s"], work / "stream.msgpack")
         h = Harness(cfg["vehicles"], load_stream(work / "stream.msgpack"), work)
-        figures: dict[str, list[float]] = {"failover_s": [], "handover_gap_s": [], "lost_s": []}
+        figures: dict[str, list[float]] = {"failover_s": [], "handover_gap_s": [], "lost_s": [],
+                                           "joined": []}
         try:
             h.add_worker()
             h.add_worker()
@@ -177,7 +179,8 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
         finally:
             h.close()
     res = {"schema": "radical.bench.fleet/1", "profile": profile, **cfg,
-           "cpus": os.cpu_count(), **{k: _stats(v) for k, v in figures.items()},
+           "cpus": os.cpu_count(), "moved_to_joiners": int(sum(figures.pop("joined"))),
+           **{k: _stats(v) for k, v in figures.items()},
            "samples": figures}
     if out_dir is not None:
         path = Path(out_dir) / f"fleet_{profile}.json"

@@ -17,8 +17,11 @@ def test_bench_fleet_smoke(tmp_path):
     res = bench_fleet.run("smoke", out_dir=tmp_path)
     data = json.loads((tmp_path / "fleet_smoke.json").read_text())
     assert data["schema"] == "radical.bench.fleet/1" and data["vehicles"] == 2
-    assert data["failover_s"]["n"] >= 1 and data["handover_gap_s"]["n"] >= 1
+    assert data["failover_s"]["n"] >= 1
+    # one gap per vehicle the joiner took (rendezvous hashing may give it none of the two)
+    assert data["handover_gap_s"]["n"] == data["moved_to_joiners"]
     for key in ("failover_s", "handover_gap_s"):
-        assert math.isfinite(data[key]["max"]) and data[key]["max"] > 0
+        if data[key]["n"]:
+            assert math.isfinite(data[key]["max"]) and data[key]["max"] > 0
     assert data["lost_s"]["n"] == data["failover_s"]["n"]  # every crash takeover counted a loss
     assert "failover" in bench_fleet.markdown(res)
