@@ -8,7 +8,6 @@ from __future__ import annotations
 import threading
 import time
 
-import msgpack
 import pytest
 
 from radical_rt.apps.fleet_worker import FleetWorker
@@ -16,6 +15,7 @@ from radical_rt.apps.node_setup import build_processors
 from radical_rt.fleet.ownership import assign
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
+from tests.support.fleet import FleetWatch
 from tests.support.node import input_messages, wait_for
 from tests.support.tcp_proxy import TcpProxy
 
@@ -37,23 +37,6 @@ def test_partition_and_heal(archives):
     client = ZenohTransport("client", connect=[direct])
     a = FleetWorker(ta, "fp", VEHICLES, _make, worker_id="w-a", checkpoint_every_s=0.5)
     b = FleetWorker(tb, "fp", VEHICLES, _make, worker_id="w-b", checkpoint_every_s=0.5)
-    owners: dict[str, set[str]] = {}
-    most = [0]
-    diag: list[tuple[str, str]] = []
-    lock = threading.Lock()
-
-    def on_owner(key: str, alive: bool) -> None:
-        v, w = key.split("/")[-2:]
-        with lock:
-            s = owners.setdefault(v, set())
-            (s.add if alive else s.discard)(w)
-            most[0] = max(most[0], len(s))
-
-    def on_diag(key: str, data: bytes) -> None:
-        m = msgpack.unpackb(data, raw=False, strict_map_key=False)
-        with lock:
-            diag.append((key.split("/")[1], (m["node"].get("fleet") or {}).get("worker")))
-
     stop = threading.Event()
     msgs = input_messages(archives["a120"])  # (about 30 s at this pace: longer than the test)
 
@@ -73,8 +56,7 @@ def test_partition_and_heal(archives):
         return out
 
     try:
-        client.liveliness_subscribe("radical-fleet/fp/owner/*/*", on_owner)
-        client.subscribe("radical/*/diag", on_diag)
+        watch = FleetWatch(client, "fp")
         a.start()
         b.start()
         want = assign(VEHICLES, ["w-a", "w-b"])
@@ -102,12 +84,8 @@ def test_partition_and_heal(archives):
         assert th.is_alive()  # inputs flowed through it all
         stop.set()
         th.join(10)
-        with lock:
-            assert most[0] == 1, owners  # never two owners of a vehicle at once
-            runs: dict[str, list[str]] = {}
-            for v, w in diag:
-                if not runs.setdefault(v, []) or runs[v][-1] != w:
-                    runs[v].append(w)
+        assert watch.most == 1, watch.owners  # never two owners of a vehicle at once
+        runs = watch.runs()
         for v in VEHICLES:
             assert runs[v] == (["w-b", "w-a", "w-b"] if v in of_b else ["w-a"]), (v, runs[v])
     finally:

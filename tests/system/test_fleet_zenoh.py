@@ -21,6 +21,7 @@ from radical_rt.fleet.ownership import assign
 from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
+from tests.support.fleet import FleetWatch
 from tests.support.node import input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
@@ -82,28 +83,10 @@ def test_kill_one_worker_mid_stream(archives):
                    *[a for v in VEHICLES for a in ("--vehicle", v)]]
     workers = [_spawn(*worker_args) for _ in range(2)]
     client = ZenohTransport("client", connect=[ep])
-    diag: list[tuple[str, str]] = []
-    owners_now: dict[str, set[str]] = {}
-    most = [0]
-    lock = threading.Lock()
-
-    def on_diag(key: str, data: bytes) -> None:
-        m = msgpack.unpackb(data, raw=False, strict_map_key=False)
-        with lock:
-            diag.append((key.split("/")[1], (m["node"].get("fleet") or {}).get("worker")))
-
-    def on_owner(key: str, alive: bool) -> None:
-        v, w = key.split("/")[-2:]
-        with lock:
-            s = owners_now.setdefault(v, set())
-            (s.add if alive else s.discard)(w)
-            most[0] = max(most[0], len(s))
-
     try:
         for w in workers:
             _wait_line(w, "ready", 180)
-        client.subscribe("radical/*/diag", on_diag)
-        client.liveliness_subscribe("radical-fleet/f1/owner/*/*", on_owner)
+        watch = FleetWatch(client, "f1")
         def settled() -> bool:  # both workers up, each serving what rendezvous hashing gives it
             ws = [msgpack.unpackb(r, raw=False) for r in client.get(
                 "radical-fleet/f1/status/*", b"", timeout=3.0, every=True)]
@@ -152,12 +135,8 @@ def test_kill_one_worker_mid_stream(archives):
             for g in ("b", "lam", "mu", "du", "dv", "phi2"):
                 err = np.abs(np.array(st["est"][g]) - np.array(truth[g]))
                 assert np.all(err <= 3 * np.array(st["sigma"][g]) + 1e-12), (v, g)
-        with lock:
-            assert most[0] == 1, owners_now  # never two owners of a vehicle at once
-            runs: dict[str, list[str]] = {}
-            for v, w in diag:
-                if not runs.setdefault(v, []) or runs[v][-1] != w:
-                    runs[v].append(w)
+        assert watch.most == 1, watch.owners  # never two owners of a vehicle at once
+        runs = watch.runs()
         for v in VEHICLES:  # diag from one worker, then (after the kill) only from the survivor
             assert runs[v] == ([victim_id, survivor] if v in moved else [survivor]), runs[v]
     finally:
