@@ -82,8 +82,9 @@ class CommandQueue:
         wake()
         return p.wait(timeout)
 
-    def run(self) -> None:
-        """Filter loop, between two messages: apply every pending command, in order."""
+    def run(self, served: dict[str, Vehicle] | None = None) -> None:
+        """Filter loop, between two messages: apply every pending command, in order (refused
+        for a vehicle no longer in ``served``: a fleet worker let it go meanwhile)."""
         if self.q.empty():  # the common case: no exception raised per message
             return
         while True:
@@ -93,6 +94,9 @@ class CommandQueue:
                 return
             if not p.claim():
                 continue  # the caller gave up waiting: never apply it late
+            if served is not None and served.get(p.vehicle.name) is not p.vehicle:
+                p.finish(commands.error_reply("vehicle no longer served by this node", p.cmd))
+                continue
             try:
                 reply = commands.apply(p.cmd, p.vehicle)
                 p.vehicle.commands_applied += 1

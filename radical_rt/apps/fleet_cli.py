@@ -146,15 +146,17 @@ def serve_status(transport: Any, worker: Any) -> None:
     def status(_payload: bytes) -> bytes:
         st = worker.status()
         st["vehicles"] = {}
-        for v, (node, _tok) in list(worker.nodes.items()):
-            veh = node.vehicles[v]
+        for v in sorted(worker.serving):
+            veh = worker.node.vehicle(v) if worker.node is not None else None
+            if veh is None:  # let go meanwhile
+                continue
             info = veh.node_info()
             last_in = veh.last_input_mono
             st["vehicles"][v] = {
                 "mode": veh.sp.engine.mode, "flags": int(veh.sp.flags), "t": float(veh.sp.engine.t),
                 "input_lag_s": time.monotonic() - last_in if last_in else None,
                 "received": sum(info["received"].values()),
-                "last_checkpoint_age_s": info["last_checkpoint_age_s"], "fleet": node.fleet_info}
+                "last_checkpoint_age_s": info["last_checkpoint_age_s"], "fleet": veh.fleet_info}
         return msgpack.packb(st, use_bin_type=True, default=str)
 
     transport.queryable(worker.prefix + f"status/{worker.id}", status)

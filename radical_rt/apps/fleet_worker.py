@@ -2,19 +2,19 @@
 
 Every worker of fleet ``F`` declares the liveliness token ``radical-fleet/F/worker/<id>`` and
 watches the others'. Of the fleet's vehicles (its roster) it serves those it owns by rendezvous
-hashing over the live workers (:mod:`radical_rt.fleet.ownership`): each with a
-:class:`~radical_rt.apps.node.FilterNode` of its own (inputs, outputs, commands and the
-vehicle's token, exactly as a single node), plus an ownership token
-``radical-fleet/F/owner/<V>/<id>``. Its checkpoints go to the fleet's replica
-(:mod:`radical_rt.fleet.replica`) every ``checkpoint_every_s`` and when it lets a vehicle go.
+hashing over the live workers (:mod:`radical_rt.fleet.ownership`), all in ONE filter loop
+(:class:`~radical_rt.apps.fleet_node.FleetNode`: inputs, outputs, commands and the vehicle's
+token exactly as a single node, one subscription per vehicle held or served), plus an ownership
+token ``radical-fleet/F/owner/<V>/<id>`` per vehicle. Its checkpoints go to the fleet's replica
+(:mod:`radical_rt.fleet.replica`) every ``checkpoint_every_s`` (staggered over the vehicles)
+and when it lets a vehicle go.
 
 When the live workers change (a join, a clean leave, a crash seen through the lease), every
 worker recomputes the owners.
 
 * **Handover** (clean join or leave): the next owner opens the vehicle's input FIFO without
   feeding it and declares ``radical-fleet/F/hold/<V>/<id>``; the old owner then stops at a cut
-  (:class:`~radical_rt.apps.fleet_node.FleetNode`: every input queued before it fed, none
-  after), publishes the final checkpoint with the digest of the last input fed, and undeclares
+  (every input queued before it fed, none after), publishes the final checkpoint with the digest of the last input fed, and undeclares
   its ownership token; the next owner restores it as the *same* stream, drops the held inputs
   the old owner fed and serves. The result equals an uninterrupted run bit for bit. A leaving
   worker first undeclares its worker token so the others start holding.
@@ -61,28 +61,30 @@ def new_worker_id() -> str:
 
 
 class ReplicaSink:
-    """A FilterNode's checkpoint target that publishes to the fleet's replica."""
+    """A FilterNode's checkpoint target that publishes every state to the fleet's replica."""
 
-    def __init__(self, replica: CheckpointReplica, vehicle: str) -> None:
-        self.replica, self.vehicle = replica, vehicle
+    def __init__(self, replica: CheckpointReplica) -> None:
+        self.replica = replica
 
     def __call__(self, states: dict[str, dict[str, Any]]) -> str:
-        try:
-            rep = self.replica.publish(self.vehicle, states[self.vehicle])
-        except Exception as exc:  # a closed or lost session: the node counts a failed write
-            raise ckpt.CheckpointError(f"cannot publish to {self}: {exc}") from None
-        return f"{self} #{rep.seq}"
+        seqs = []
+        for vehicle, state in states.items():
+            try:
+                seqs.append(f"{vehicle} #{self.replica.publish(vehicle, state).seq}")
+            except Exception as exc:  # a closed or lost session: the node counts a failed write
+                raise ckpt.CheckpointError(f"cannot publish {vehicle} to {self}: {exc}") from None
+        return f"{self}: {', '.join(seqs)}"
 
     def __str__(self) -> str:
-        return f"fleet replica {self.replica.key}{self.vehicle}"
+        return f"fleet replica {self.replica.key}"
 
 
 class FleetWorker:
     """One worker of fleet ``fleet`` over ``transport`` (see the module docstring).
 
-    vehicles: the roster. make_processor(name) → a fresh StreamProcessor. node_kw: FilterNode
-    options for every vehicle. checkpoint_every_s: wall seconds between replica checkpoints.
-    claim_settle_s: how long a claim waits for rival claims before the worker serves.
+    vehicles: the roster. make_processor(name) → a fresh StreamProcessor. node_kw: options of
+    the worker's :class:`FleetNode` (those of FilterNode). checkpoint_every_s: wall seconds
+    between two replica checkpoints of a vehicle. claim_settle_s: how long a claim waits for rival claims before the worker serves.
     handover_wait_s: how long a vehicle no longer owned waits for its next owner to hold its
     inputs before it is let go without a handover.
     """
@@ -105,8 +107,9 @@ class FleetWorker:
         self.resync_s = 1.0  # after a lost link: wait this long for the others' tokens
         self._resync_until = 0.0
         self.prefix = fleet_prefix(fleet)
-        self.nodes: dict[str, tuple[FleetNode, Any]] = {}  # served: vehicle → (node, owner token)
-        self.holding: dict[str, tuple[FleetNode, Any]] = {}  # inputs held: (node, hold token)
+        self.node: FleetNode | None = None  # the one filter loop (from start)
+        self.serving: dict[str, Any] = {}  # vehicle → its ownership token
+        self.holding: dict[str, Any] = {}  # inputs held: vehicle → its hold token
         self.takeovers: list[dict[str, Any]] = []
         self.fenced = False  # no router: serving nothing until the link is back
         self._wake = threading.Event()
@@ -121,6 +124,10 @@ class FleetWorker:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> FleetWorker:
         self.replica = CheckpointReplica(self.t, self.fleet, self.id)
+        self.node = FleetNode(self.t, inbox_key=self.prefix + f"inbox/{self.id}",
+                              checkpoint_path=ReplicaSink(self.replica),
+                              checkpoint_every_s=self.checkpoint_every_s, **self.node_kw)
+        self.node.start()
         self._decls.append(self.t.liveliness_subscribe(self.prefix + "worker/*",
                                                        self.view.on_worker))
         for kind in KINDS:
@@ -144,13 +151,15 @@ class FleetWorker:
         if self._token is not None:
             self._token.undeclare()
             self._token = None
-        end = time.monotonic() + (self.handover_wait_s if self.nodes else 0.0)
-        for v in sorted(self.nodes):
+        end = time.monotonic() + (self.handover_wait_s if self.serving else 0.0)
+        for v in sorted(self.serving):
             while not self.view.others("hold", v) and time.monotonic() < end:
                 time.sleep(0.02)
             self._release(v)
         for v in list(self.holding):
             self._drop_hold(v)
+        if self.node is not None:
+            self.node.stop(drain_s=0.0, final_checkpoint=False)
         for d in reversed(self._decls):
             d.undeclare()
         self._decls.clear()
@@ -192,10 +201,10 @@ class FleetWorker:
         self._let_go(target)
         for v in sorted(set(self.holding) - target):
             self._drop_hold(v)
-        for v in sorted(target - set(self.nodes) - set(self.holding)):
+        for v in sorted(target - set(self.serving) - set(self.holding)):
             if self.view.others("owner", v):  # served elsewhere: hold its inputs, then take it
                 self._hold(v)
-        free = [v for v in sorted(target - set(self.nodes)) if not self.view.taken_by_others(v)]
+        free = [v for v in sorted(target - set(self.serving)) if not self.view.taken_by_others(v)]
         if not free:
             return
         # claim first, then look again: two workers that claimed at once (neither saw the
@@ -213,7 +222,7 @@ class FleetWorker:
         inputs, without one after handover_wait_s; at once when another worker serves it with a
         higher score (two owners after a healed partition: the lower one yields)."""
         now = time.monotonic()
-        for v in sorted(self.nodes):
+        for v in sorted(self.serving):
             rival = self.view.outranked(v, ("owner",))
             if v in target and not rival:
                 self._unowned_since.pop(v, None)
@@ -228,101 +237,99 @@ class FleetWorker:
             log.warning("fleet %s: worker %s lost its link: serving nothing until it is back",
                         self.fleet, self.id)
         self.fenced = True
-        for v in sorted(self.nodes):
+        for v in sorted(self.serving):
             self._release(v, publish=False)
         for v in list(self.holding):
             self._drop_hold(v)
 
     # ------------------------------------------------------------------ one vehicle
-    def _new_node(self, vehicle: str, sp: StreamProcessor | None = None) -> FleetNode:
-        assert self.replica is not None
-        node = FleetNode(self.t, {vehicle: sp or self.make_processor(vehicle)},
-                         checkpoint_path=ReplicaSink(self.replica, vehicle),
-                         checkpoint_every_s=self.checkpoint_every_s, **self.node_kw)
-        node.open_inbox()
-        return node
-
     def _hold(self, vehicle: str) -> None:
-        """Hold the inputs of a vehicle served elsewhere (its FIFO open, not fed), then say so."""
-        node = self._new_node(vehicle)
-        self.holding[vehicle] = (node, self.t.liveliness_token(self.prefix + f"hold/{vehicle}/{self.id}"))
+        """Hold the inputs of a vehicle served elsewhere (subscribed, not fed), then say so."""
+        assert self.node is not None
+        self.node.hold(vehicle, self.make_processor(vehicle))
+        self.holding[vehicle] = self.t.liveliness_token(self.prefix + f"hold/{vehicle}/{self.id}")
         log.info("fleet %s: %s holds the inputs of %s", self.fleet, self.id, vehicle)
 
     def _drop_hold(self, vehicle: str) -> None:
-        node, token = self.holding.pop(vehicle)
-        token.undeclare()
-        node.stop(drain_s=0.0, final_checkpoint=False)
+        assert self.node is not None
+        self.holding.pop(vehicle).undeclare()
+        self.node.drop(vehicle)
 
     def _take(self, vehicle: str) -> None:
-        assert self.replica is not None
+        assert self.replica is not None and self.node is not None
         held = self.holding.pop(vehicle, None)
-        node = held[0] if held is not None else self._new_node(vehicle)
+        if held is None:
+            self.node.hold(vehicle, self.make_processor(vehicle))
         rep = self.replica.fetch(vehicle, timeout=1.0)
         info: dict[str, Any] = {"worker": self.id, "fleet": self.fleet, "taken_unix": time.time(),
                                 "source": "cold", "replica_worker": None, "lost_s": None}
-        if rep is not None:
-            node = self._restore(node, rep, info, held is not None)
-        node.fleet_info = info
+        digest = self._restore(vehicle, rep, info, held is not None) if rep is not None else None
         token = self.t.liveliness_token(self.prefix + f"owner/{vehicle}/{self.id}")
-        node.serve()  # (outputs only under the ownership token)
+        dropped = self.node.serve_vehicle(vehicle, digest, info)  # outputs under the token
+        if digest is not None:
+            info["held_dropped"] = dropped  # those the old owner fed
         if held is not None:
-            held[1].undeclare()
-        self.nodes[vehicle] = (node, token)
+            held.undeclare()
+        self.serving[vehicle] = token
         self.takeovers.append({"vehicle": vehicle, **info})
         log.info("fleet %s: %s taken by %s (%s%s)", self.fleet, vehicle, self.id, info["source"],
                  f", {info['lost_s']:.1f} s lost" if info.get("loss_flagged") else "")
 
-    def _restore(self, node: FleetNode, rep: Replica, info: dict[str, Any],
-                 held: bool) -> FleetNode:
-        """Put the replica's state into the (not yet serving) node; the node to serve."""
-        v, sp = node.vehicle.name, node.vehicle.sp
-        handover = (held and rep.final and rep.handover
-                    and rep.worker == self.view.last_owner(v))
+    def _restore(self, v: str, rep: Replica, info: dict[str, Any], held: bool) -> bytes | None:
+        """Put the replica's state into the held vehicle; the digest of the last input the old
+        owner fed when it is a handover (None otherwise)."""
+        assert self.node is not None
+        sp = self.node.processor(v)
+        handover = bool(held and rep.final and rep.handover
+                        and rep.worker == self.view.last_owner(v))
         age = max(0.0, time.time() - rep.t_wall)
         try:
             # a handover continues the stream (bit for bit); otherwise a new stream starts
             ckpt.restore(sp, rep.state(), new_stream=not handover)
         except ckpt.CheckpointError as exc:
             log.error("fleet %s: replica of %s unusable (%s): cold start", self.fleet, v, exc)
-            node.stop(drain_s=0.0, final_checkpoint=False)
-            return self._new_node(v)
+            self.node.replace_processor(v, self.make_processor(v))
+            return None
         info.update(source="handover" if handover else "replica", replica_worker=rep.worker,
                     replica_seq=rep.seq, replica_age_s=age, lost_s=0.0, loss_flagged=False)
         if handover:
-            info["held_dropped"] = node.skip_through(rep.cut)  # those the old owner fed
-        elif not rep.final or rep.worker != self.view.last_owner(v):
+            return rep.cut or b""
+        if not rep.final or rep.worker != self.view.last_owner(v):
             # not handed over (its owner crashed): the input since that checkpoint is lost
             sp.note_takeover_loss(age)
             info.update(lost_s=age, loss_flagged=True)
-        return node
+        return None
 
     def _release(self, vehicle: str, publish: bool = True) -> None:
-        """Stop serving ``vehicle``. When another worker holds its inputs: stop at a cut (every
-        input queued now fed, none after). Then the final checkpoint goes to the replica (with
-        the cut), and only then the ownership token (the next owner waits for that)."""
-        node, token = self.nodes.pop(vehicle)
-        cut, digest = False, None
-        if publish and self.view.others("hold", vehicle):
+        """Stop serving ``vehicle`` at a cut (every input queued now fed, none after). Then the
+        final checkpoint goes to the replica (with the cut's digest when another worker holds
+        its inputs: a handover), and only then the ownership token (the next owner waits for
+        that)."""
+        assert self.node is not None
+        token = self.serving.pop(vehicle)
+        handover = publish and bool(self.view.others("hold", vehicle))
+        try:
+            digest, cut = self.node.cut(vehicle), True
+        except TimeoutError as exc:
+            log.error("fleet %s: no cut for %s (%s): let go without a handover",
+                      self.fleet, vehicle, exc)
+            digest, cut = None, False
+        if publish and cut and self.replica is not None:
             try:
-                digest, cut = node.cut(), True
-            except (TimeoutError, RuntimeError) as exc:
-                log.error("fleet %s: no cut for %s (%s): let go without a handover",
-                          self.fleet, vehicle, exc)
-        node.stop(drain_s=0.5, final_checkpoint=False)
-        if publish and self.replica is not None:
-            try:
-                self.replica.publish(vehicle, ckpt.capture(node.vehicle.sp, vehicle),
-                                     final=True, handover=cut, cut=digest)
+                self.replica.publish(vehicle, ckpt.capture(self.node.processor(vehicle), vehicle),
+                                     final=True, handover=handover, cut=digest if handover else None)
             except Exception as exc:  # the final checkpoint failed: the periodic one stands
                 log.error("fleet %s: final checkpoint of %s failed: %s", self.fleet, vehicle, exc)
         token.undeclare()
+        if cut:
+            self.node.drop(vehicle)
         log.info("fleet %s: %s let go by %s%s", self.fleet, vehicle, self.id,
-                 " at a cut" if cut else "")
+                 " at a cut (handover)" if handover else "")
 
     def status(self) -> dict[str, Any]:
         """The worker's view: live workers, owned/served vehicles, takeovers."""
         return {"worker": self.id, "fleet": self.fleet, "live_workers": sorted(self.live_workers()),
-                "serving": sorted(self.nodes), "holding": sorted(self.holding),
+                "serving": sorted(self.serving), "holding": sorted(self.holding),
                 "owned": self.owned(), "fenced": self.fenced,
                 "takeovers": list(self.takeovers),
                 "replicas": {v: {"worker": r.worker, "seq": r.seq, "age_s": time.time() - r.t_wall}

@@ -93,6 +93,7 @@ class FilterNode:
     """
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
+    MIN_VEHICLES = 1  # a fleet's node starts with none and takes them as it goes
     CHECKPOINT_RETRY_S = 5.0  # a failed periodic checkpoint is retried this much later [s]
 
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
@@ -103,7 +104,7 @@ class FilterNode:
                  idle_release_s: float | None = None, max_payload_bytes: int | None = None,
                  queue_bytes: int | None = QUEUE_BYTES, stale_after_s: float | None = None,
                  auth: Profile | None = None):
-        if not processors:
+        if len(processors) < self.MIN_VEHICLES:
             raise ValueError("at least one vehicle is needed")
         if queue_size < 1 or checkpoint_every_s <= 0 or (queue_bytes is not None and queue_bytes < 1):
             raise ValueError("queue_size, queue_bytes must be ≥ 1 and checkpoint_every_s > 0")
@@ -117,6 +118,7 @@ class FilterNode:
         self.stale_after_s = stale_after_s
         self.transport = transport
         self.vehicles = {name: Vehicle(self, name, sp) for name, sp in processors.items()}
+        self.max_payload_bytes = max_payload_bytes
         if max_payload_bytes is not None:  # the size bound of every vehicle's inputs
             for sp in processors.values():
                 sp.max_payload_bytes = max_payload_bytes
@@ -143,7 +145,6 @@ class FilterNode:
         self.loop_error: BaseException | None = None
         self.running = False
         self.timing = timing  # per-message timing records (perf), or None
-        self.fleet_info: dict[str, Any] | None = None  # set by a fleet worker (diag, status)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -174,11 +175,16 @@ class FilterNode:
         self._ticker = threading.Thread(target=self._tick, name="radical-tick", daemon=True)
         self._ticker.start()
         for v in self.vehicles.values():
-            for key in ("cmd", "cmd/*/*"):  # the contract's key, the users' keys (cmd_access)
-                self._handles.append(self.transport.queryable(
-                    v.prefix + key, functools.partial(self._on_query, v), keyed=True))
-            self._handles.append(self.transport.liveliness_token(v.prefix + "alive/filter"))
-        log.info("serving %s", ", ".join(self.vehicles))
+            self._handles += self.declare_vehicle(v)
+        log.info("serving %s", ", ".join(self.vehicles) or "no vehicle yet")
+
+    def declare_vehicle(self, v: Vehicle) -> list[Any]:
+        """The command queryables and the liveliness token of a served vehicle (handles)."""
+        out = [self.transport.queryable(v.prefix + key, functools.partial(self._on_query, v),
+                                        keyed=True)
+               for key in ("cmd", "cmd/*/*")]  # the contract's key, the users' (cmd_access)
+        out.append(self.transport.liveliness_token(v.prefix + "alive/filter"))
+        return out
 
     def _set_realtime(self, thread: threading.Thread) -> None:
         """SCHED_FIFO at ``rt_priority`` for the filter loop thread; NodeStartError (node
@@ -259,7 +265,7 @@ class FilterNode:
                 item = inbox.try_recv()
                 if item is None:
                     self._idle = True  # before the last look: a command queued after it wakes us
-                    self._cmdq.run()
+                    self._cmdq.run(self.vehicles)
                     self._housekeeping()
                     if self.idle_release_s is not None:
                         release_idle(self, self._mono())
@@ -267,7 +273,7 @@ class FilterNode:
                     self._idle = False
                     if item is None:
                         continue
-                self._cmdq.run()
+                self._cmdq.run(self.vehicles)
                 self.take_input(*item)
                 self._housekeeping()
             while self._mono() < self._drain_until:  # stopping: finish what is queued
@@ -346,7 +352,13 @@ class FilterNode:
         report_fifo_losses(self.vehicles, self._inbox)
         if self.stale_after_s is not None:
             check_links(self, self._mono())
-        if checkpoint and self.checkpoint_path and self._mono() >= self._next_ckpt:
+        if checkpoint and self.checkpoint_path:
+            self.checkpoint_step()
+
+    def checkpoint_step(self) -> None:
+        """Housekeeping: the periodic checkpoint when it is due (a fleet's node staggers its
+        vehicles' checkpoints instead)."""
+        if self._mono() >= self._next_ckpt:
             self._periodic_checkpoint()
 
     def _periodic_checkpoint(self) -> None:
@@ -381,17 +393,21 @@ class FilterNode:
             return int(pending())
         return 0 if self._idle else None
 
-    def write_checkpoint(self) -> str:
-        """Write all vehicles' state now (filter loop thread, or after it stopped)."""
+    def write_checkpoint(self, names: list[str] | None = None) -> str:
+        """Write the state of the vehicles ``names`` (None: all) now (filter loop thread, or
+        after it stopped)."""
         if not self.checkpoint_path:
             raise commands.CommandError("no checkpoint path: start the node with --checkpoint PATH")
+        chosen = [self.vehicles[n] for n in names] if names is not None else list(self.vehicles.values())
         try:
-            states = {name: ckpt.capture(v.sp, name) for name, v in self.vehicles.items()}
+            states = {v.name: ckpt.capture(v.sp, v.name) for v in chosen}
             sink = self.checkpoint_path  # a file, or a callable (a fleet's replica) → where
             path = sink(states) if callable(sink) else ckpt.write(sink, states)
         except ckpt.CheckpointError as exc:
             raise commands.CommandError(str(exc)) from None
         self.checkpoints_written += 1
         self.last_checkpoint_mono = self._mono()
+        for v in chosen:
+            v.last_checkpoint_mono = self.last_checkpoint_mono
         log.debug("checkpoint written to %s", path)
         return path

@@ -54,8 +54,11 @@ class LoopTiming:
             sh = self._shift.get(out_topic)
             if sh is not None:
                 tlm += 1 << sh
-        self.buf.extend((self._vi.get(vehicle, -1), self._ti.get(topic, -1), recv_ns, start_ns,
-                         fed_ns, done_ns, tlm))
+        vi = self._vi.get(vehicle)
+        if vi is None:  # a vehicle a fleet worker took after the start
+            vi = self._vi[vehicle] = len(self.vehicles)
+            self.vehicles.append(vehicle)
+        self.buf.extend((vi, self._ti.get(topic, -1), recv_ns, start_ns, fed_ns, done_ns, tlm))
 
     def arrays(self) -> dict[str, np.ndarray]:
         a = np.frombuffer(self.buf, dtype=np.int64).reshape(-1, len(self.FIELDS))

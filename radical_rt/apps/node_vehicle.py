@@ -66,6 +66,8 @@ class Vehicle:
         self.last_input_mono = 0.0
         self.holding = False  # inputs taken since the last release of everything
         self.link = LinkWatch(node.stale_after_s) if node.stale_after_s else None
+        self.last_checkpoint_mono: float | None = None  # this vehicle's state last written
+        self.fleet_info: dict[str, Any] | None = None  # set by a fleet worker (diag, status)
 
     # ---- called by commands.apply (filter loop thread)
     def status(self) -> dict[str, Any]:
@@ -104,15 +106,15 @@ class Vehicle:
                 "commands_applied": self.commands_applied, "published": dict(self.published),
                 "commands": n.audit.summary(self.name),
                 "security": n.auth.describe() if n.auth is not None else {"auth": "none"},
-                "fleet": n.fleet_info,
+                "fleet": self.fleet_info,
                 "eos": self.eos_seen, "reported_lost": self.reported_lost,
                 "idle_releases": self.idle_releases,
                 "link_lost": bool(self.sp.link_lost), "stale_after_s": n.stale_after_s,
                 "checkpoint": str(n.checkpoint_path) if n.checkpoint_path else None,
                 "checkpoints_written": n.checkpoints_written,
                 "checkpoint_failures": n.checkpoint_failures, "checkpoint_error": n.checkpoint_error,
-                "last_checkpoint_age_s": (time.monotonic() - n.last_checkpoint_mono)
-                if n.last_checkpoint_mono is not None else None}
+                "last_checkpoint_age_s": (time.monotonic() - self.last_checkpoint_mono)
+                if self.last_checkpoint_mono is not None else None}
 
 
 

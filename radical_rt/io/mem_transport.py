@@ -111,6 +111,14 @@ class MemInbox:
             self.nbytes -= len(item[1])
             return item
 
+    def push_control(self, key: str, data: bytes = b"") -> None:
+        """Queue a control item (a fleet node's cut or serve marker) behind everything queued
+        now, whatever the bounds: it must not be dropped, and it carries no input."""
+        with self._cond:
+            self._items.append((key, data))
+            self.nbytes += len(data)
+            self._cond.notify_all()
+
     def drop_through(self, match: Any) -> int | None:
         """Drop the waiting samples up to and including the first for which ``match(key,
         payload)`` is true and return how many; None (nothing dropped) if none matches."""
@@ -242,6 +250,10 @@ class InMemoryTransport:
         box = MemInbox(capacity, wait_s, capacity_bytes)
         box.decl = self.subscribe(key, box.push, remote_only=True)
         return box
+
+    def inbox_subscribe(self, box: MemInbox, key: str) -> _Decl:
+        """One more subscription on ``key`` feeding ``box`` (see ZenohTransport)."""
+        return self.subscribe(key, box.push, remote_only=True)
 
     def queryable(self, key: str, handler: QueryHandler | KeyedQueryHandler,
                   keyed: bool = False) -> _Decl:

@@ -37,7 +37,7 @@ queryable, in order, like the Zenoh Python binding).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 SampleCallback = Callable[[str, bytes], None]
 QueryHandler = Callable[[bytes], bytes | None]
@@ -78,6 +78,8 @@ class Transport(Protocol):
 
     def inbox(self, key: str, capacity: int, wait_s: float = 1.0,
               capacity_bytes: int | None = None) -> Inbox: ...
+
+    def inbox_subscribe(self, box: Any, key: str) -> Handle: ...
 
     def put(self, key: str, payload: bytes, block: bool = False,
             remote_only: bool = False) -> None: ...

@@ -101,6 +101,12 @@ class ZenohTransport:
             return ZByteInbox(self, key, capacity, wait_s, capacity_bytes, max_payload)
         return ZInbox(self, key, capacity, max_payload)
 
+    def inbox_subscribe(self, box: ZByteInbox, key: str) -> _ZHandle:
+        """One more subscription on ``key`` feeding the byte-bounded FIFO ``box`` (a fleet
+        worker's one FIFO for the vehicles it holds or serves; its size checks apply)."""
+        handler = self.zenoh.handlers.Callback(box.on_sample, indirect=False)
+        return self._keep(self.session.declare_subscriber(key, handler))
+
     def queryable(self, key: str, handler: QueryHandler | KeyedQueryHandler,
                   keyed: bool = False) -> _ZHandle:
         def on_query(q: Any) -> None:

@@ -126,10 +126,10 @@ class ZByteInbox(MemInbox):
         # indirect=False: the callback runs in Zenoh's receive thread. The default (indirect)
         # callback hands every sample to a Python thread through an unbounded channel, which
         # holds the flood this FIFO is meant to bound (measured: 200 MB for 8 MiB queued)
-        handler = transport.zenoh.handlers.Callback(self._on_sample, indirect=False)
+        handler = transport.zenoh.handlers.Callback(self.on_sample, indirect=False)
         self._sub: Any = transport.session.declare_subscriber(key, handler)
 
-    def _on_sample(self, s: Any) -> None:
+    def on_sample(self, s: Any) -> None:
         """The subscriber callback (a Zenoh thread): size first, copy only what is queued."""
         try:
             key = str(s.key_expr)

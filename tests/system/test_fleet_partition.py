@@ -51,7 +51,7 @@ def test_partition_and_heal(archives):
     def served() -> dict[str, list[str]]:
         out: dict[str, list[str]] = {}
         for w in (a, b):
-            for v in w.nodes:
+            for v in w.serving:
                 out.setdefault(v, []).append(w.id)
         return out
 
@@ -68,7 +68,7 @@ def test_partition_and_heal(archives):
         time.sleep(2.0)  # inputs flowing, replicas written
 
         proxy.cut()  # b loses its only link
-        wait_for(lambda: b.fenced and not b.nodes, 10, 0.05, "b to stop serving")
+        wait_for(lambda: b.fenced and not b.serving, 10, 0.05, "b to stop serving")
         wait_for(lambda: served() == {v: ["w-a"] for v in VEHICLES}, 20, 0.1, "a to take all")
         taken = {t["vehicle"]: t for t in a.takeovers if t["vehicle"] in of_b}
         assert set(taken) == set(of_b)

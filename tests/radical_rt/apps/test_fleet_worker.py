@@ -62,7 +62,7 @@ def fleet():
 def _served(workers) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     for w in workers:
-        for v in w.nodes:
+        for v in w.serving:
             out.setdefault(v, []).append(w.id)
     return out
 
@@ -87,8 +87,7 @@ def test_join_and_crash(fleet, archives):
         for v in VEHICLES:
             client.put(f"radical/{v}/{topic}", data, block=True)
     for w in (a, b):
-        for node, _ in w.nodes.values():
-            assert node.wait_idle(30)
+        assert w.node.wait_idle(30)
     t_before = {v: _status(client, v)["t"] for v in VEHICLES}
     assert all(t > 0 for t in t_before.values())
     wait_for(lambda: all(a.replica.latest(v) and b.replica.latest(v) for v in VEHICLES), 10,
@@ -102,7 +101,7 @@ def test_join_and_crash(fleet, archives):
     for t in moved:  # from the old owner's final checkpoint: the state it had when it let go
         assert _status(client, t["vehicle"])["t"] == pytest.approx(t_before[t["vehicle"]])
 
-    b_vehicles = sorted(b.nodes)
+    b_vehicles = sorted(b.serving)
     b.t.close()  # a crash: b's tokens go with its session, nothing is handed over
     wait_for(lambda: _settled([a, c]), 20, what="the survivors to take b's vehicles")
     taken = {t["vehicle"]: t for w in (a, c) for t in w.takeovers if t["vehicle"] in b_vehicles
@@ -153,13 +152,11 @@ def test_a_join_and_a_clean_leave_hand_over_bit_for_bit(fleet, archives):
     wait_for(lambda: _settled([a]), 20, what="the leave")
     th.join()
     assert done.is_set()
-    for node, _ in a.nodes.values():
-        assert node.wait_idle(30)
+    assert a.node.wait_idle(30)
     moved = {t["vehicle"] for t in b.takeovers}
     assert moved and all(t["source"] == "handover" for t in b.takeovers)
     back = [t for t in a.takeovers if t["vehicle"] in moved and t["replica_worker"] == "w-b"]
     assert {t["vehicle"] for t in back} == moved and all(t["source"] == "handover" for t in back)
     for v in VEHICLES:
-        node, _ = a.nodes[v]
-        assert _engine_view(node.vehicle.sp) == ref[v], v
+        assert _engine_view(a.node.processor(v)) == ref[v], v
     assert watch.most == 1
