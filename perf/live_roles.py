@@ -45,7 +45,7 @@ def role_drive(a: argparse.Namespace) -> int:
     topics = np.asarray(stream["topics"], dtype=np.int64)
     t_rel = np.asarray(stream["t"], dtype=np.float64)
     payloads = stream["payloads"]
-    s = _open_session(listen=a.listen)
+    s = _open_session(listen=a.listen, connect=a.connect)
     rx: list[tuple[int, str, bytes]] = []
     first = threading.Event()
 

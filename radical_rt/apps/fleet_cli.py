@@ -123,7 +123,8 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
                          node_kw={"block_outputs": args.block_outputs,
                                   "auth": sa.profile if sa is not None else None,
                                   "stale_after_s": args.stale_after or None,
-                                  "idle_release_s": args.idle_release or None})
+                                  "idle_release_s": args.idle_release or None,
+                                  "timing": _timing(args)})
     serve_status(transport, worker)
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -134,9 +135,25 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     finally:
         worker.stop()
         transport.close()
+        timing = worker.node_kw.get("timing")
+        if timing is not None:
+            try:
+                timing.save(args.timing_out)
+            except OSError as exc:
+                log.error("cannot write --timing-out %s: %s", args.timing_out, exc)
         for s, h in old.items():
             signal.signal(s, h)
     return 0
+
+
+def _timing(args: argparse.Namespace) -> Any:
+    """The filter loop's per-message timing records (``--timing-out``; perf/), or None."""
+    if not getattr(args, "timing_out", None):
+        return None
+    from radical_rt.apps.node_timing import LoopTiming
+    timing = LoopTiming([])
+    timing.watch_gc()
+    return timing
 
 
 def serve_status(transport: Any, worker: Any) -> None:
