@@ -105,6 +105,9 @@ class FleetNode(FilterNode):
     """
 
     MIN_VEHICLES = 0
+    # periodic replica checkpoints are only restored as a new stream (a crash): without the FDI
+    # history (ckpt.capture); a handover's final checkpoint carries it (FleetWorker._release)
+    CHECKPOINT_HISTORY = False
     SERVE, CUT = "@serve", "@cut"  # the markers' topics (no input topic starts with @)
 
     def __init__(self, transport: Any, *, inbox_key: str, **kw: Any) -> None:

@@ -94,6 +94,7 @@ class FilterNode:
 
     TICK_S = 0.25  # housekeeping period while the loop waits for input [s]
     MIN_VEHICLES = 1  # a fleet's node starts with none and takes them as it goes
+    CHECKPOINT_HISTORY = True  # its checkpoints carry the FDI history (a resume continues it)
     CHECKPOINT_RETRY_S = 5.0  # a failed periodic checkpoint is retried this much later [s]
 
     def __init__(self, transport: Transport, processors: dict[str, StreamProcessor], *,
@@ -400,7 +401,7 @@ class FilterNode:
             raise commands.CommandError("no checkpoint path: start the node with --checkpoint PATH")
         chosen = [self.vehicles[n] for n in names] if names is not None else list(self.vehicles.values())
         try:
-            states = {v.name: ckpt.capture(v.sp, v.name) for v in chosen}
+            states = {v.name: ckpt.capture(v.sp, v.name, self.CHECKPOINT_HISTORY) for v in chosen}
             sink = self.checkpoint_path  # a file, or a callable (a fleet's replica) → where
             path = sink(states) if callable(sink) else ckpt.write(sink, states)
         except ckpt.CheckpointError as exc:

@@ -87,9 +87,10 @@ class SampleBuffer:
             return None
         return self._f, self._i, self._b, a, z
 
-    def get_state(self) -> dict[str, np.ndarray]:
-        """The rows in use, copied (checkpoints): f (m, 3 + n), status (m,), bridged (m,)."""
-        s = slice(self.i0, self.end)
+    def get_state(self, rows: bool = True) -> dict[str, np.ndarray]:
+        """The rows in use, copied (checkpoints): f (m, 3 + n), status (m,), bridged (m,);
+        ``rows=False``: none of them (m = 0)."""
+        s = slice(self.i0, self.end) if rows else slice(0, 0)
         return {"f": self._f[s].copy(), "status": self._i[s].copy(), "bridged": self._b[s].copy()}
 
     def set_state(self, st: dict[str, np.ndarray]) -> None:

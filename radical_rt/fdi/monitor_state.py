@@ -25,20 +25,25 @@ class MonitorState:
     _SCALARS = ("state", "last_nu", "last_rho", "_next_check", "_sum_seen", "_t_decided",
                 "trk_seq")
 
-    def get_state(self) -> dict[str, Any]:
+    def get_state(self, history: bool = True) -> dict[str, Any]:
         """Everything the monitor carries between two hooks (numpy arrays and plain values;
         radical_rt.io.ckpt_fdi encodes and validates it): a resume continues an alarm in progress
-        with the same history, snapshots and bank."""
-        b = self.bank
+        with the same history, snapshots and bank. ``history=False`` leaves out the gyro and
+        tracker history, the snapshots and the bank (up to 600 s of samples, megabytes): what
+        a new stream starts without anyway (a warm start voids them), so a state only ever
+        restored as a new stream (a fleet's periodic replica) need not carry them."""
+        b = self.bank if history else None
+        gbuf = self.gbuf.get_state(rows=history)
         return {**{k: getattr(self, k) for k in self._SCALARS},
                 "gen": None if self.gen is None else list(self.gen), "alarm": self.alarm,
                 "alarm_is_last": bool(self.alarms) and self.alarm is self.alarms[-1],
                 "alarms": self.alarms, "isolations": self.isolations,
                 "parity_log": np.array(self.parity_log, np.float64).reshape(-1, 2),
                 "failed": sorted(self.failed_by_fdi), "flagged_only": sorted(self.flagged_only),
-                "counts": dict(self.counts), "gbuf": self.gbuf.get_state(),
-                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk],
-                "snaps": [vars(s) for s in self.snaps],
+                "counts": dict(self.counts), "gbuf": gbuf,
+                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk]
+                if history else [],
+                "snaps": [vars(s) for s in self.snaps] if history else [],
                 "det": None if self.det is None else self.det.get_state(),
                 "bank": None if b is None else {"snap": vars(b.snap), "t_alarm": b.t_alarm,
                                                 **b.get_state()}}

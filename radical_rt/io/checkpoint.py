@@ -50,8 +50,11 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be read or written, is damaged, or does not fit the node."""
 
 
-def capture(sp: StreamProcessor, vehicle: str = "") -> dict[str, Any]:
-    """One vehicle's state (msgpack-able). Call it from the thread that runs ``sp``."""
+def capture(sp: StreamProcessor, vehicle: str = "", history: bool = True) -> dict[str, Any]:
+    """One vehicle's state (msgpack-able). Call it from the thread that runs ``sp``.
+    ``history=False``: without the FDI's sample history, snapshots and bank (megabytes after
+    10 minutes), which only a continuation of the same stream uses: a state for
+    ``restore(..., new_stream=True)`` only (a fleet's periodic replica; docs/fleet.md)."""
     e = sp.engine
     return {
         "vehicle": vehicle,
@@ -62,7 +65,7 @@ def capture(sp: StreamProcessor, vehicle: str = "") -> dict[str, Any]:
         "stream": {"rejected": dict(sp.rejected), "late_dropped": int(sp.late_dropped),
                    "temps": dict(sp.temps), "index": int(sp.streams.index),
                    "start": sp.streams.start, "bumped": sp.streams.bump is not None},
-        "running": ckpt_state.capture(sp),
+        "running": ckpt_state.capture(sp, history),
         "t": float(e.t), "mode": e.mode,
     }
 

@@ -38,9 +38,9 @@ def _enc(v: Any) -> Any:
     return v
 
 
-def capture(fdi) -> dict[str, Any]:
-    """The monitor's running state, msgpack-able."""
-    return _enc(fdi.get_state())
+def capture(fdi, history: bool = True) -> dict[str, Any]:
+    """The monitor's running state, msgpack-able (``history``: see ``get_state``)."""
+    return _enc(fdi.get_state(history))
 
 
 # ------------------------------------------------------------------------------------ check

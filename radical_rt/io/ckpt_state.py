@@ -46,7 +46,7 @@ def _arr(a: np.ndarray) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------ capture
-def capture(sp: StreamProcessor) -> dict[str, Any]:
+def capture(sp: StreamProcessor, history: bool = True) -> dict[str, Any]:
     """The running state of one vehicle's processor (engine, clock, queues, FDI; msgpack-able).
     Call it from the thread that runs ``sp``."""
     e, gq, tq = sp.engine, sp.gyro_q, sp.tracker_q
@@ -79,7 +79,7 @@ def capture(sp: StreamProcessor) -> dict[str, Any]:
             "state": fdi.state, "failed": sorted(int(g) for g in fdi.failed_by_fdi),
             "flagged_only": sorted(int(g) for g in fdi.flagged_only),
             "counts": {str(k): int(v) for k, v in fdi.counts.items()},
-            "monitor": ckpt_fdi.capture(fdi)},
+            "monitor": ckpt_fdi.capture(fdi, history)},
     }
 
 
