@@ -229,7 +229,8 @@ def _analyse(done: list[dict[str, Any]], rec: np.ndarray, cpu: dict[str, np.ndar
              "distinct": int(np.unique(r[:, 1]).size), "one_way_ms": pct(lat)}
         if len(r):
             dt = (d["t1_ns"] - d["t0_ns"]) * 1e-9
-            s.update(sent_hz=d["n"] / dt, delivered_hz=len(r) / ((r[:, 3].max() - d["t0_ns"]) * 1e-9))
+            t_last = max(int(r[:, 3].max()), d["t1_ns"])  # so delivered ≤ sent by construction
+            s.update(sent_hz=d["n"] / dt, delivered_hz=len(r) / ((t_last - d["t0_ns"]) * 1e-9))
         s["cpu_pct"] = {k: _cpu_pct(cpu, k, d["t0_ns"], d["t1_ns"])
                         for k in cpu if k != "t_ns"}
         if routers and "delivered_hz" in s:
