@@ -55,7 +55,8 @@ TOPOLOGIES = ("direct", "one", "two")
 WARMUP, LATENCY_HZ, GAP_S = 50, 100.0, 0.5
 PROFILES = {"smoke": {"latency_n": 200, "rates": [2000, 5000], "step_s": 1.0},
             "quick": {"latency_n": 1000, "rates": [5000, 10000, 20000, 40000], "step_s": 2.5},
-            "full": {"latency_n": 6000, "rates": [5000, 10000, 20000, 40000, 80000], "step_s": 8.0}}
+            "full": {"latency_n": 4000, "rates": [5000, 10000, 20000, 40000, 80000, 160000],
+                     "step_s": 5.0}}
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
@@ -264,23 +265,28 @@ def _overheads(topo: dict[str, Any]) -> dict[str, dict[str, float]]:
                 for q in ("p50", "p99", "p99_9")} for k, (a, b) in pairs.items()}
 
 
+def _router_cpu(step: dict[str, Any]) -> str:
+    c = step["cpu_pct"]
+    return "/".join(f"{c[k]:.0f}" for k in c if k.startswith("router")) or "–"
+
+
 def markdown(res: dict[str, Any]) -> str:
     t = res["topologies"]
     lines = [f"{res['payload_bytes']}-byte messages (siru, one read), CPUs {res['cpus']}, "
              f"load {res['machine'].get('loadavg')}", "",
-             "| topology | n | one-way p50 ms | p99 ms | p99.9 ms | max ms | Δp50 vs direct ms |",
-             "|---|---|---|---|---|---|---|"]
+             "| topology | n | one-way p50 ms | p99 ms | p99.9 ms | max ms | Δp50 vs direct ms | "
+             "router CPU % |", "|---|---|---|---|---|---|---|---|"]
     for name in TOPOLOGIES:
         q, d = t[name]["latency"]["one_way_ms"], t["direct"]["latency"]["one_way_ms"]
         lines.append(f"| {name} | {q['n']} | {q['p50']:.3f} | {q['p99']:.3f} | {q['p99_9']:.3f} | "
-                     f"{q['max']:.3f} | {q['p50'] - d['p50']:+.3f} |")
+                     f"{q['max']:.3f} | {q['p50'] - d['p50']:+.3f} | "
+                     f"{_router_cpu(t[name]['latency'])} |")
     lines += ["", "| topology | target/s | sent/s | delivered/s | lost | router CPU % | "
               "router CPU % per 1k/s | pub CPU % | sub CPU % | p50 ms | p99 ms |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in TOPOLOGIES:
         for s in t[name]["throughput"]:
-            c = s["cpu_pct"]
-            rc = "/".join(f"{c[k]:.0f}" for k in c if k.startswith("router")) or "–"
+            c, rc = s["cpu_pct"], _router_cpu(s)
             per_k = f"{s['router_cpu_pct_per_khz']:.2f}" if "router_cpu_pct_per_khz" in s else "–"
             lines.append(f"| {name} | {s['target_hz']:.0f} | {s.get('sent_hz', 0):.0f} | "
                          f"{s.get('delivered_hz', 0):.0f} | {s['sent'] - s['received']} | {rc} | "
