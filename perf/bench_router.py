@@ -54,9 +54,10 @@ KEY = "radical/rbench/siru"
 TOPOLOGIES = ("direct", "one", "two")
 WARMUP, LATENCY_HZ, GAP_S = 50, 100.0, 0.5
 PROFILES = {"smoke": {"latency_n": 200, "rates": [2000, 5000], "step_s": 1.0},
-            "quick": {"latency_n": 1000, "rates": [5000, 10000, 20000, 40000], "step_s": 2.5},
-            "full": {"latency_n": 4000, "rates": [5000, 10000, 20000, 40000, 80000, 160000],
+            "quick": {"latency_n": 1000, "rates": [1000, 5000, 10000, 20000, 40000], "step_s": 2.5},
+            "full": {"latency_n": 4000, "rates": [1000, 5000, 10000, 20000, 40000, 80000, 160000],
                      "step_s": 5.0}}
+IDLE_S = 2.0  # routers' CPU with the links up and no traffic, before the publisher starts
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
@@ -201,6 +202,7 @@ def _run_topology(name: str, steps: list[list[int]], work: Path) -> dict[str, An
                                str(sum(n for _, n in steps)), "--timeout", str(budget),
                                "--out", str(sub_out)], sub_log)
         _wait_log(procs["sub"], sub_log, "READY")
+        idle = _idle_cpu(routers)
         procs["pub"] = _spawn(["perf.bench_router", "pub", *pub_opts, "--steps", json.dumps(steps),
                                "--out", str(pub_out)], work / f"{name}_pub.log")
         cpu = _cpu_samples(procs, procs["pub"], budget)
@@ -211,7 +213,16 @@ def _run_topology(name: str, steps: list[list[int]], work: Path) -> dict[str, An
     finally:
         for p in procs.values():
             host.stop_process(p, timeout=10)
-    return _analyse(json.loads(pub_out.read_text()), np.load(sub_out), cpu, list(routers))
+    res = _analyse(json.loads(pub_out.read_text()), np.load(sub_out), cpu, list(routers))
+    return {**res, "idle_cpu_pct": idle}
+
+
+def _idle_cpu(procs: dict[str, subprocess.Popen]) -> dict[str, float]:
+    """CPU % of each process over IDLE_S seconds without traffic (/proc ticks: ±0.5 %)."""
+    a = {k: host.proc_stat(p.pid) for k, p in procs.items()}
+    time.sleep(IDLE_S)
+    b = {k: host.proc_stat(p.pid) for k, p in procs.items()}
+    return {k: 100 * (b[k][1] - a[k][1]) / IDLE_S for k in procs if a[k] and b[k]}
 
 
 def _cpu_pct(cpu: dict[str, np.ndarray], key: str, t0: float, t1: float) -> float:
@@ -267,7 +278,7 @@ def _overheads(topo: dict[str, Any]) -> dict[str, dict[str, float]]:
 
 def _router_cpu(step: dict[str, Any]) -> str:
     c = step["cpu_pct"]
-    return "/".join(f"{c[k]:.0f}" for k in c if k.startswith("router")) or "–"
+    return "/".join(f"{c[k]:.1f}" for k in c if k.startswith("router")) or "–"
 
 
 def markdown(res: dict[str, Any]) -> str:
@@ -275,11 +286,12 @@ def markdown(res: dict[str, Any]) -> str:
     lines = [f"{res['payload_bytes']}-byte messages (siru, one read), CPUs {res['cpus']}, "
              f"load {res['machine'].get('loadavg')}", "",
              "| topology | n | one-way p50 ms | p99 ms | p99.9 ms | max ms | Δp50 vs direct ms | "
-             "router CPU % |", "|---|---|---|---|---|---|---|---|"]
+             "router CPU % idle | at 100 Hz |", "|---|---|---|---|---|---|---|---|---|"]
     for name in TOPOLOGIES:
         q, d = t[name]["latency"]["one_way_ms"], t["direct"]["latency"]["one_way_ms"]
         lines.append(f"| {name} | {q['n']} | {q['p50']:.3f} | {q['p99']:.3f} | {q['p99_9']:.3f} | "
                      f"{q['max']:.3f} | {q['p50'] - d['p50']:+.3f} | "
+                     f"{_router_cpu({'cpu_pct': t[name]['idle_cpu_pct']})} | "
                      f"{_router_cpu(t[name]['latency'])} |")
     lines += ["", "| topology | target/s | sent/s | delivered/s | lost | router CPU % | "
               "router CPU % per 1k/s | pub CPU % | sub CPU % | p50 ms | p99 ms |",

@@ -35,5 +35,6 @@ def test_bench_router_smoke(tmp_path):
             assert 0 < s["delivered_hz"] <= s["sent_hz"]
             assert s["one_way_ms"]["p50"] <= s["one_way_ms"]["max"]
             assert len([k for k in s["cpu_pct"] if k.startswith("router")]) == topo["routers"]
+        assert len(topo["idle_cpu_pct"]) == topo["routers"]
     assert set(data["overhead_ms"]) == {"one_vs_direct", "two_vs_direct", "two_vs_one"}
     assert "direct" in bench_router.markdown(res)
