@@ -2,26 +2,22 @@
 
     python -m perf.bench_router [--profile smoke|quick|full] [--out DIR]    # radical bench --only router
 
-Three topologies on loopback (multicast scouting off, explicit ``tcp/127.0.0.1:PORT`` endpoints on
-free ports, every process its own and pinned with ``taskset`` to the live benches' CPU set):
+Three topologies on loopback (multicast scouting off, ``tcp/127.0.0.1:PORT`` on free ports), every
+process its own, pinned with ``taskset`` to the live benches' CPU set: ``direct`` (the subscriber
+listens as a peer, the publisher connects to it, as perf/live.py), ``one`` router (publisher and
+subscriber are its clients), ``two`` routers chained (publisher on A, subscriber on B, B → A).
 
-* ``direct``: the subscriber listens as a peer, the publisher (a peer) connects to it (as perf/live.py);
-* ``one``: one ``radical router``; the publisher and the subscriber are its clients;
-* ``two``: router A, and router B connected to A; the publisher is a client of A, the subscriber of B.
+One publisher (``python -m perf.bench_router pub``) and one subscriber (``... sub``) per topology
+run the same steps. A message is a 16-byte header (step, seq, send stamp) and a one-read contract
+``siru`` message (msgpack, CONTRACT §3) on ``radical/rbench/siru``, BLOCK congestion control
+(reliable: a slow receiver slows the sender; nothing is dropped).
 
-Per topology one publisher (``python -m perf.bench_router pub``) and one subscriber (``... sub``)
-run the same steps. Each message is a 16-byte header (step, seq, send stamp) and a contract
-``siru`` message of one read (msgpack, CONTRACT §3), put on ``radical/rbench/siru`` with BLOCK
-congestion control (reliable: a slow receiver slows the sender, nothing is dropped).
-
-1. **latency**: 100 Hz at absolute deadlines, after an untimed warm-up. One-way latency is the
-   subscriber's receive stamp minus the publisher's send stamp, both CLOCK_MONOTONIC ns (one clock
-   for every process of the host).
-2. **throughput**: stepped target rates, paced in slices (the messages due are put in a tight
-   loop, then a sleep until the next one is due). Per step: messages sent and received, the rate
-   the publisher achieved (below the target when something saturates), the delivered rate, the
-   latency under load, and the CPU of every process (routers, publisher, subscriber) from
-   /proc/PID/stat sampled by this driver every 0.1 s.
+1. **latency**: 100 Hz at absolute deadlines after an untimed warm-up; one-way = the subscriber's
+   receive stamp − the publisher's send stamp (CLOCK_MONOTONIC ns, one clock for the host).
+2. **throughput**: stepped target rates, paced in slices (the messages due put in a tight loop,
+   then a sleep). Per step: sent, received, the rate achieved (below the target when something
+   saturates), the delivered rate, latency under load, and each process's CPU (routers,
+   publisher, subscriber) from /proc/PID/stat sampled every 0.1 s; the routers' idle CPU too.
 
 Wall-clock figures on a shared machine: reported, never asserted (perf/README.md, "Router hop
 and chain").
@@ -196,8 +192,7 @@ def _run_topology(name: str, steps: list[list[int]], work: Path) -> dict[str, An
     procs: dict[str, subprocess.Popen] = dict(routers)
     budget = 3 * sum(n / r + GAP_S for r, n in steps) + 60
     try:
-        sub_log, pub_out, sub_out = work / f"{name}_sub.log", work / f"{name}_pub.json", \
-            work / f"{name}_sub.npy"
+        sub_log, pub_out, sub_out = (work / f"{name}_{f}" for f in ("sub.log", "pub.json", "sub.npy"))
         procs["sub"] = _spawn(["perf.bench_router", "sub", *sub_opts, "--max",
                                str(sum(n for _, n in steps)), "--timeout", str(budget),
                                "--out", str(sub_out)], sub_log)
@@ -313,12 +308,11 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] in (["pub"], ["sub"]):
         ap = argparse.ArgumentParser(prog=f"python -m perf.bench_router {argv[0]}")
         ap.add_argument("--mode", choices=("peer", "client"), required=True)
-        ap.add_argument("--listen", action="append")
-        ap.add_argument("--connect", action="append")
         ap.add_argument("--out", required=True)
-        ap.add_argument("--steps", default="[]")
-        ap.add_argument("--max", type=int, default=0)
-        ap.add_argument("--timeout", type=float, default=600.0)
+        for flag, kw in (("--listen", {"action": "append"}), ("--connect", {"action": "append"}),
+                         ("--steps", {"default": "[]"}), ("--max", {"type": int, "default": 0}),
+                         ("--timeout", {"type": float, "default": 600.0})):
+            ap.add_argument(flag, **kw)
         a = ap.parse_args(argv[1:])
         return role_pub(a) if argv[0] == "pub" else role_sub(a)
     ap = argparse.ArgumentParser(prog="python -m perf.bench_router", description=__doc__,
