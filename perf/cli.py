@@ -20,7 +20,8 @@ from radical_rt.io.outpaths import output_dir
 BENCHES = {"kernels": "perf.bench_kernels", "synth": "perf.bench_synth", "engine": "perf.bench_engine",
            "clock": "perf.bench_clock", "fdi": "perf.bench_fdi_bank", "startup": "perf.bench_startup",
            "latency": "perf.bench_latency", "capacity": "perf.bench_capacity",
-           "fleet": "perf.bench_fleet", "fleet_capacity": "perf.bench_fleet_capacity"}
+           "fleet": "perf.bench_fleet", "fleet_capacity": "perf.bench_fleet_capacity",
+           "router": "perf.bench_router"}
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
 
