@@ -42,7 +42,7 @@ from perf import live, live_analysis, live_host, live_stream
 PROFILES: dict[str, dict[str, Any]] = {
     "smoke": dict(steps=(2,), warmup_s=2.0, measure_s=4.0, search=False),
     "quick": dict(steps=(8, 32), warmup_s=8.0, measure_s=10.0, search=False),
-    "full": dict(steps=(16, 32, 48, 64, 80, 96, 112, 128, 160, 192), warmup_s=8.0,
+    "full": dict(steps=(16, 32, 48, 64, 80, 96, 112, 128, 160, 192), warmup_s=10.0,
                  measure_s=30.0, search=True),
 }
 FLEET = "fcap"
