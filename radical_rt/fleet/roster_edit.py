@@ -42,12 +42,19 @@ class EditResult:
                     and not self.superseded)
 
 
-def read_states(t: Transport, fleet: str, timeout: float) -> list[dict[str, Any]]:
-    """Every holder's roster (see :func:`radical_rt.fleet.roster.decode_state`)."""
-    try:
-        replies = t.get(state_key(fleet), b"", timeout=timeout, every=True)
-    except Exception:  # no route yet, a closed session: nobody answered
-        return []
+def read_states(t: Transport, fleet: str, timeout: float,
+                workers: Iterable[str] | None = None) -> list[dict[str, Any]]:
+    """The rosters of ``workers`` (their own keys), or of every holder (None: a wildcard
+    query); see :func:`radical_rt.fleet.roster.decode_state`. (Over Zenoh a wildcard query
+    from a client always waits ZenohTransport.MATCH_WAIT_S first: a querier on a wildcard key
+    never reports a match. A worker's own key does, and is answered in milliseconds.)"""
+    keys = [state_key(fleet)] if workers is None else [state_key(fleet, w) for w in workers]
+    replies = []
+    for key in keys:
+        try:
+            replies += t.get(key, b"", timeout=timeout, every=workers is None)
+        except Exception:  # no route yet, a closed session: nobody answered
+            continue
     return [st for st in (decode_state(r, fleet) for r in replies) if st is not None]
 
 
@@ -67,9 +74,17 @@ def edit_roster(t: Transport, fleet: str, op: str, vehicles: Iterable[str], by: 
         with lock:
             (live.add if alive else live.discard)(key.rsplit("/", 1)[-1])
 
+    def now_live() -> list[str]:
+        with lock:
+            return sorted(live)
+
     watch = t.liveliness_subscribe(fleet_prefix(fleet) + "worker/*", on_worker)
     try:
-        states = read_states(t, fleet, max(0.1, min(2.0, end - time.monotonic())))
+        first = min(end, time.monotonic() + 2.0)  # the live workers' tokens, then their rosters
+        while not now_live() and time.monotonic() < first:
+            time.sleep(0.01)
+        wait = max(0.1, min(2.0, end - time.monotonic()))
+        states = read_states(t, fleet, wait, now_live() or None)
         if not states:
             return res
         clock = max(st["clock"] for st in states) + 1
@@ -78,9 +93,8 @@ def edit_roster(t: Transport, fleet: str, op: str, vehicles: Iterable[str], by: 
         while True:
             for e in pending:
                 t.put(edit_key(fleet, e.vehicle), msgpack.packb(e.pack(fleet)), block=True)
-            states = read_states(t, fleet, max(0.1, min(2.0, end - time.monotonic())))
-            with lock:
-                res.live = sorted(live)
+            res.live = now_live()
+            states = read_states(t, fleet, max(0.1, min(2.0, end - time.monotonic())), res.live)
             res.acked, res.superseded, pending = _check(states, res.edits, set(res.live))
             if (res.live and set(res.live) <= set(res.acked)) or time.monotonic() >= end:
                 break
