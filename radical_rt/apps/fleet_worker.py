@@ -43,8 +43,8 @@ from collections.abc import Callable
 from typing import Any
 
 from radical_rt.apps.fleet_node import FleetNode
-from radical_rt.fleet.ownership import owner
 from radical_rt.fleet.discovery import Discovery
+from radical_rt.fleet.ownership import owner
 from radical_rt.fleet.replica import CheckpointReplica, Replica, fleet_prefix
 from radical_rt.fleet.roster import Roster
 from radical_rt.fleet.view import KINDS, FleetView
