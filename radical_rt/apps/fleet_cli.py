@@ -1,7 +1,7 @@
 """Fleet workers from the command line (docs/fleet.md).
 
     radical node --fleet NAME --connect EP [--vehicle V ...] [--roster FILE] [--workers N]
-                 [--checkpoint-every S] [--config PARAMS.toml] [--packets PACKETS.toml]
+                 [--discover [TOPIC]] [--checkpoint-every S] [--config PARAMS.toml] [--packets PACKETS.toml]
     radical fleet status --fleet NAME [--connect EP] [--json]
     radical fleet add V [V ...] --fleet NAME [--connect EP] [--timeout S]
     radical fleet remove V [V ...] --fleet NAME [--connect EP] [--timeout S]

@@ -65,6 +65,9 @@ def run_edit(args: argparse.Namespace) -> int:
     print(f"fleet {args.fleet}: {', '.join(res.vehicles)} {done} the roster (clock "
           f"{res.edits[0].clock}); confirmed by {len(res.acked)} of {len(res.live)} live "
           f"worker(s)")
+    for v in res.unchanged:
+        print(f"  {v}: " + ("already in the roster" if res.op == "add" else
+                            "was not in the roster (now kept out: discovery will not add it)"))
     for v, who in sorted(res.owners.items()):
         print(f"  {v}: owner {who}")
     for v, e in sorted(res.superseded.items()):

@@ -26,7 +26,8 @@ from radical_rt.io.transport import Transport
 class EditResult:
     """What an edit did: the edits published (none if no worker answered), the live workers,
     those that hold the edit, the vehicles whose edit a later one superseded (vehicle → the
-    winner), the owners of added vehicles by rendezvous hashing over the live workers."""
+    winner), the owners of added vehicles by rendezvous hashing over the live workers, and the
+    vehicles the edit did not change on any worker (already in, or never in, the roster)."""
 
     op: str
     vehicles: list[str]
@@ -35,6 +36,7 @@ class EditResult:
     acked: list[str] = field(default_factory=list)
     superseded: dict[str, Edit] = field(default_factory=dict)
     owners: dict[str, str | None] = field(default_factory=dict)
+    unchanged: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -88,6 +90,8 @@ def edit_roster(t: Transport, fleet: str, op: str, vehicles: Iterable[str], by: 
         if not states:
             return res
         clock = max(st["clock"] for st in states) + 1
+        res.unchanged = [v for v in names
+                         if all((v in st["vehicles"]) == (op == "add") for st in states)]
         res.edits = [Edit(v, op, clock, by, "cli", time.time()) for v in names]
         pending = list(res.edits)
         while True:

@@ -36,7 +36,7 @@ def test_static_base_edits_and_a_late_joiner_converge():
     assert res.owners == {v: owner(v, ["w-a", "w-b"]) for v in ("v8", "v9")}
     assert res.edits[0].clock == 1  # after the static names (clock 0)
     res = edit_roster(tool, F, "remove", ["v1"], by="cli-x", timeout=2.0)  # a static name
-    assert res.ok and res.edits[0].clock == 2
+    assert res.ok and res.edits[0].clock == 2 and res.unchanged == []
     want = ["v2", "v3", "v8", "v9"]
     assert a.vehicles() == b.vehicles() == want
     c = _holder(bus, "w-c", ["v1"])  # joins later, with the removed name in its file
@@ -46,6 +46,8 @@ def test_static_base_edits_and_a_late_joiner_converge():
     assert st["entries"]["v1"]["state"] == "removed" and st["entries"]["v9"]["state"] == "added"
     assert st["entries"]["v3"]["state"] == "static" and st["clock"] == 2
     assert c.edit("add", ["v1"])[0].clock == 3  # a holder's own edit continues the clock
+    assert edit_roster(tool, F, "add", ["v1", "v7"], by="cli-y", timeout=2.0).unchanged == ["v1"]
+    want = sorted([*want, "v7"])
     assert a.vehicles() == b.vehicles() == c.vehicles() == ["v1", *want]
 
 
@@ -130,3 +132,24 @@ def test_one_worker_discovers_and_another_takes_over():
     sensor.put("radical/new-3/temp", b"x")
     disc[second].follow(set(rest))
     assert rosters[second].vehicles() == ["new-3", "v1"]
+
+
+def test_an_edit_superseded_while_it_spreads_is_not_confirmed():
+    """Another tool removes the vehicle right after our add reaches it (a later clock): our
+    add is reported superseded, not confirmed, and every holder keeps the remove."""
+    bus = InMemoryBus()
+    holders = [_holder(bus, w, ["v1"]) for w in ("w-a", "w-b")]
+    other = InMemoryTransport(bus)
+    done = []
+
+    def react(key: str, data: bytes) -> None:
+        e = Edit.unpack(msgpack.unpackb(data, raw=False), F)
+        if e.by == "cli-x" and not done:
+            done.append(e)
+            other.put(key, msgpack.packb(Edit(e.vehicle, "remove", e.clock + 1, "cli-z").pack(F)))
+
+    other.subscribe(edit_key(F), react, remote_only=True)
+    res = edit_roster(InMemoryTransport(bus), F, "add", ["v5"], by="cli-x", timeout=1.0)
+    assert done and not res.ok
+    assert res.superseded["v5"].by == "cli-z" and res.superseded["v5"].op == "remove"
+    assert all(h.vehicles() == ["v1"] for h in holders)
