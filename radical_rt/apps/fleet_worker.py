@@ -190,6 +190,7 @@ class FleetWorker:
             if self._stop.is_set():
                 break
             try:
+                self.roster.sync(self.view.live())  # anti-entropy (roster edits missed)
                 if self.discovery is not None:
                     self.discovery.follow(self.view.live())
                 self.reconcile()

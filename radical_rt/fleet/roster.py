@@ -30,6 +30,12 @@ when its inputs keep flowing (discovery adds only names the roster has never see
 worker restarts with the name in its file. All is lost when every worker stops: then the files
 are the roster again.
 
+Anti-entropy: an edit a worker missed (a partition, a lost link) would leave it behind for
+good, so each worker also pulls, every ``SYNC_S`` (10 s), the whole roster of one other live
+worker, in turn (:meth:`Roster.sync`, from the worker's controller; the query in a short thread
+of its own). After a partition heals, every worker has pulled every other one within
+``SYNC_S`` × (workers − 1), and the merge rule makes the result the same everywhere.
+
 Thread safety: sample and query callbacks come on Zenoh threads; the records are under one lock
 and ``on_change()`` (the worker's wake-up) is called after a change, outside it.
 """
@@ -129,6 +135,8 @@ class Roster:
     static: the names of ``--vehicle``/``--roster FILE``; on_change(): called after the roster
     (the set or an entry) changed, e.g. the worker's wake-up."""
 
+    SYNC_S = 10.0  # anti-entropy: pull one other live worker's roster this often
+
     def __init__(self, transport: Transport, fleet: str, me: str, static: Iterable[str] = (),
                  on_change: Callable[[], None] = lambda: None) -> None:
         self.t, self.fleet, self.me, self._on_change = transport, fleet, me, on_change
@@ -142,6 +150,9 @@ class Roster:
             self._rec.merge(Edit(v, "add", 0, me, "static"))
         self._decls: list[Any] = []
         self.rejected = 0  # records refused (malformed, another fleet's)
+        self._next_sync = time.monotonic() + self.SYNC_S
+        self._turn = 0
+        self.pulls = 0  # anti-entropy pulls done
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, timeout: float = 2.0) -> Roster:
@@ -171,6 +182,33 @@ class Roster:
                 known.add(e.vehicle)
                 self._merge(e)
         return known
+
+    def sync(self, live: Iterable[str]) -> None:
+        """Anti-entropy (controller thread, at every look): every SYNC_S, merge the roster of
+        the next other live worker in turn; the query runs in a thread of its own."""
+        now = time.monotonic()
+        others = sorted(set(live) - {self.me})
+        if now < self._next_sync or not others:
+            return
+        self._next_sync = now + self.SYNC_S
+        worker = others[self._turn % len(others)]
+        self._turn += 1
+        threading.Thread(target=self.pull, args=(worker,), name=f"roster-pull-{worker}",
+                         daemon=True).start()
+
+    def pull(self, worker: str, timeout: float = 1.0) -> None:
+        """Merge ``worker``'s whole roster."""
+        try:
+            replies = self.t.get(state_key(self.fleet, worker), b"", timeout=timeout)
+        except Exception as exc:  # gone meanwhile, a closed session: the next turn
+            log.debug("fleet %s: roster pull from %s: %s", self.fleet, worker, exc)
+            return
+        for data in replies:
+            st = decode_state(data, self.fleet)
+            for e in (st["edits"] if st is not None else []):
+                self._merge(e)
+        with self._lock:
+            self.pulls += 1
 
     def close(self) -> None:
         for d in self._decls:

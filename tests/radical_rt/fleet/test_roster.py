@@ -153,3 +153,30 @@ def test_an_edit_superseded_while_it_spreads_is_not_confirmed():
     assert done and not res.ok
     assert res.superseded["v5"].by == "cli-z" and res.superseded["v5"].op == "remove"
     assert all(h.vehicles() == ["v1"] for h in holders)
+
+
+class _Deaf(InMemoryTransport):
+    """A transport whose subscriptions miss every sample while ``cut`` (a partition)."""
+
+    cut = False
+
+    def subscribe(self, key, callback, remote_only=False):
+        return super().subscribe(key, lambda k, d: None if self.cut else callback(k, d),
+                                 remote_only)
+
+
+def test_an_edit_missed_in_a_partition_arrives_by_anti_entropy():
+    bus = InMemoryBus()
+    a = _holder(bus, "w-a", ["v1"])
+    deaf = _Deaf(bus)
+    deaf.liveliness_token(f"radical-fleet/{F}/worker/w-b")
+    b = Roster(deaf, F, "w-b", ["v1"]).start()
+    deaf.cut = True
+    a.edit("add", ["v4"])  # b misses it
+    b.edit("remove", ["v1"])  # a hears this one
+    deaf.cut = False
+    assert a.vehicles() == ["v4"] and b.vehicles() == []
+    b.sync({"w-a", "w-b"})  # not yet: one pull per SYNC_S
+    assert b.pulls == 0
+    b.pull("w-a")  # what sync does in a thread once SYNC_S has passed
+    assert b.vehicles() == a.vehicles() == ["v4"] and b.pulls == 1
