@@ -77,3 +77,43 @@ def test_fleet_add_remove_and_discovery_over_a_router():
                 p.wait(30)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_roster_edits_under_a_security_profile(tmp_path, capsys):
+    """Through the profile's router: an operator's `fleet add` is confirmed, a monitor may read
+    the roster (`fleet status`) but its edit is dropped by the ACL (exit 1, nothing changed)."""
+    import zenoh
+
+    from radical_rt.apps.cli import main as radical_main
+    from radical_rt.apps.fleet_cli import serve_status
+    from radical_rt.apps.fleet_worker import FleetWorker
+    from radical_rt.apps.keys_cli import init_profile, parse_users
+    from radical_rt.apps.node_setup import build_processors
+
+    prof = init_profile(tmp_path / "auth", tls=False, port=zconfig.free_port(),
+                        users=parse_users(["operator:alice"]))
+    router = zenoh.open(zenoh.Config.from_file(str(prof.directory / "router.json5")))
+    t = worker = None
+    try:
+        t = ZenohTransport("client", connect=[prof.endpoint], extra=prof.client_settings("node"))
+        worker = FleetWorker(t, "f1", ["v1"], lambda v: build_processors([v])[v],
+                             worker_id="w-sec")
+        serve_status(t, worker)  # (as radical node --fleet does)
+        worker.start()
+        auth = ["--fleet", "f1", "--connect", prof.endpoint, "--auth", str(prof.directory)]
+        assert radical_main(["fleet", "add", "v9", *auth, "--user", "alice"]) == 0
+        assert "confirmed by 1 of 1" in capsys.readouterr().out
+        assert worker.vehicles == ["v1", "v9"]
+        assert radical_main(["fleet", "remove", "v1", *auth, "--role", "monitor",
+                             "--timeout", "1"]) == 1
+        assert "not confirmed within 1 s by: w-sec" in capsys.readouterr().err
+        assert worker.vehicles == ["v1", "v9"]
+        assert radical_main(["fleet", "status", *auth]) == 0  # a monitor reads the roster
+        out = capsys.readouterr().out
+        assert "roster: 2 vehicle(s)" in out and "v9               added" in out
+    finally:
+        if worker is not None:
+            worker.stop()
+        if t is not None:
+            t.close()
+        router.close()
