@@ -87,8 +87,9 @@ class FleetWorker:
     vehicles: the static roster, edited by ``radical fleet add/remove`` through the fleet's
     shared :class:`~radical_rt.fleet.roster.Roster`. discover: an input topic whose keys add
     new vehicles when this worker is the fleet's discoverer (None: no discovery).
-    make_processor(name) → a fresh StreamProcessor. node_kw: options of the worker's
-    :class:`FleetNode` (those of FilterNode). checkpoint_every_s: wall seconds between two replica checkpoints of a vehicle. claim_settle_s: how long a claim waits for rival claims before the worker serves.
+    make_processor(name) → a fresh StreamProcessor. node_kw: options of
+    the worker's :class:`FleetNode` (those of FilterNode). checkpoint_every_s: wall seconds
+    between two replica checkpoints of a vehicle. claim_settle_s: how long a claim waits for rival claims before the worker serves.
     handover_wait_s: how long a vehicle no longer owned waits for its next owner to hold its
     inputs before it is let go without a handover.
     """
