@@ -60,7 +60,10 @@ def test_add_serves_remove_lets_go_with_a_final_checkpoint(archives):
         assert all(w.vehicles == ["v2"] for w in workers)  # a static name removed too
         wait_for(lambda: not _servers(workers, "v9") and not _servers(workers, "v1"), 20,
                  what="the owners to let v1 and v9 go")
-        for w in workers:  # the final checkpoint of v9 is in every worker's replica
+        # (a worker forgets a vehicle as it starts letting it go: the final checkpoint follows)
+        wait_for(lambda: all(getattr(w.replica.latest("v9"), "final", False) for w in workers),
+                 10, what="v9's final checkpoint in every worker's replica")
+        for w in workers:
             rep = w.replica.fetch("v9", timeout=1.0)
             assert rep is not None and rep.final and rep.worker == last
             fresh = _make("v9")
