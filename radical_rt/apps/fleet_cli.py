@@ -1,8 +1,10 @@
 """Fleet workers from the command line (docs/fleet.md).
 
     radical node --fleet NAME --connect EP [--vehicle V ...] [--roster FILE] [--workers N]
-                 [--checkpoint-every S] [--config PARAMS.toml] [--packets PACKETS.toml]
+                 [--discover [TOPIC]] [--checkpoint-every S] [--config PARAMS.toml] [--packets PACKETS.toml]
     radical fleet status --fleet NAME [--connect EP] [--json]
+    radical fleet add V [V ...] --fleet NAME [--connect EP] [--timeout S]
+    radical fleet remove V [V ...] --fleet NAME [--connect EP] [--timeout S]
 
 ``radical node --fleet NAME`` runs fleet workers instead of one node: each serves the vehicles
 of the roster (``--vehicle``, and/or ``--roster FILE`` with one name per line, ``#`` comments)
@@ -10,7 +12,11 @@ that it owns among the live workers, as a Zenoh client of the router at ``--conn
 ``--workers N`` starts N worker processes (default: one per CPU core); each is a ``radical node
 --fleet NAME --workers 1`` of its own. ``--checkpoint-every`` (default 10 s here) sets how much
 calibration progress a crash can lose. ``radical fleet status`` asks every live worker and
-prints one line per worker and per vehicle: owner, mode, input lag, last checkpoint.
+prints one line per worker and per vehicle: owner, mode, input lag, last checkpoint, and the
+roster (each name static, added or discovered). ``radical fleet add/remove`` edits the roster the
+workers share and waits until every live worker holds the edit (exit 0; 1: no worker answered or
+not confirmed in time; 2: bad options). ``--discover [TOPIC]`` (off by default) lets the fleet
+add the vehicles whose inputs appear on ``radical/<V>/TOPIC`` (default siru).
 """
 
 from __future__ import annotations
@@ -31,14 +37,15 @@ from radical_rt.io import zauth, zconfig
 
 log = logging.getLogger("radical.fleet")
 #: the subcommand's line in `radical --help`
-HELP = "fleet status: workers, vehicles, owners, lag, checkpoints"
+HELP = "fleet status, add, remove: workers, roster, owners, lag, checkpoints"
 #: Zenoh lease of a worker's link [ms]: a worker that hangs is declared dead after it
 LEASE_MS = 3000
 
 
-def read_roster(path: str | None, vehicles: list[str] | None) -> list[str]:
-    """The roster: ``--vehicle`` names and the lines of ``--roster FILE`` (ValueError if empty,
-    unreadable or with a bad name)."""
+def read_roster(path: str | None, vehicles: list[str] | None, empty_ok: bool = False) -> list[str]:
+    """The static roster: ``--vehicle`` names and the lines of ``--roster FILE`` (ValueError if
+    unreadable, with a bad name, or empty unless ``empty_ok``: a worker may join a fleet whose
+    roster the other workers hold, or that discovers its vehicles)."""
     from radical_rt.apps.node_vehicle import VEHICLE_RE
 
     names = list(vehicles or [])
@@ -52,7 +59,7 @@ def read_roster(path: str | None, vehicles: list[str] | None) -> list[str]:
     bad = [n for n in names if not VEHICLE_RE.match(n)]
     if bad:
         raise ValueError(f"roster: vehicle names must match [a-z0-9_-]+: {bad[:5]}")
-    if not names:
+    if not names and not empty_ok:
         raise ValueError("a fleet needs vehicles: --vehicle V and/or --roster FILE")
     return sorted(set(names))
 
@@ -88,7 +95,7 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
     try:
-        roster = read_roster(args.roster, args.vehicle)
+        roster = read_roster(args.roster, args.vehicle, empty_ok=True)
         if args.resume or args.checkpoint:
             raise ValueError("a fleet keeps its checkpoints in the fleet's replica: "
                              "--resume/--checkpoint do not apply")
@@ -97,7 +104,7 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
                              "(radical router)")
         if workers < 1:
             raise ValueError("--workers must be ≥ 1")
-        build_processors([roster[0]], args.config, args.packets, args.clock)  # options valid?
+        build_processors([roster[0] if roster else "check"], args.config, args.packets, args.clock)  # options valid?
         sa = zauth.from_args(args, "node")
     except Exception as exc:  # ValueError, ParamError, PacketError, AuthError: one line
         print(f"radical node: {exc}", file=sys.stderr)
@@ -118,7 +125,10 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     def make(name: str):
         return build_processors([name], args.config, args.packets, args.clock)[name]
 
-    worker = FleetWorker(transport, args.fleet, roster, make,
+    if not roster:
+        log.info("fleet %s: no static roster: vehicles come from the fleet's shared roster "
+                 "(radical fleet add)%s", args.fleet, " and discovery" if args.discover else "")
+    worker = FleetWorker(transport, args.fleet, roster, make, discover=args.discover,
                          checkpoint_every_s=args.checkpoint_every or 10.0,
                          node_kw={"block_outputs": args.block_outputs,
                                   "auth": sa.profile if sa is not None else None,
@@ -181,7 +191,9 @@ def serve_status(transport: Any, worker: Any) -> None:
 
 # ----------------------------------------------------------------------------- radical fleet
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    sub = p.add_subparsers(dest="fleet_cmd", metavar="{status}")
+    from radical_rt.apps.fleet_roster_cli import add_edit_parsers
+
+    sub = p.add_subparsers(dest="fleet_cmd", metavar="{status,add,remove}")
     st = sub.add_parser("status", help="workers, vehicles, owners, input lag, last checkpoint")
     st.add_argument("--fleet", required=True, metavar="NAME")
     st.add_argument("--connect", metavar="EP", default="tcp/127.0.0.1:7447",
@@ -189,24 +201,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     st.add_argument("--timeout", type=float, default=3.0, metavar="S")
     st.add_argument("--json", action="store_true", help="print the workers' answers as JSON")
     zauth.add_auth_arguments(st, "monitor")
+    add_edit_parsers(sub)
+
+
+def open_session(args: argparse.Namespace, role: str) -> Any:
+    """The tool's client session to ``--connect`` under ``--auth`` (default ``role``);
+    zconfig.ZenohConfigError or zauth.AuthError for bad options."""
+    from radical_rt.io.zenoh_transport import ZenohTransport
+
+    zconfig.check_endpoint(args.connect)
+    sa = zauth.from_args(args, role)
+    return ZenohTransport("client", [], [args.connect],
+                          extra=sa.settings(listening=False) if sa else None)
 
 
 def run(args: argparse.Namespace) -> int:
     import msgpack
 
-    from radical_rt.io.zenoh_transport import ZenohTransport
+    from radical_rt.apps.fleet_roster_cli import print_roster, run_edit
+    from radical_rt.io.transport import TransportError
 
+    if args.fleet_cmd in ("add", "remove"):
+        return run_edit(args)
     if args.fleet_cmd != "status":
-        print("radical fleet: give a subcommand: status", file=sys.stderr)
+        print("radical fleet: give a subcommand: status, add or remove", file=sys.stderr)
         return 2
     try:
-        zconfig.check_endpoint(args.connect)
-        sa = zauth.from_args(args, "monitor")
+        t = open_session(args, "monitor")
     except (zconfig.ZenohConfigError, zauth.AuthError) as exc:
         print(f"radical fleet: error: {exc}", file=sys.stderr)
         return 2
-    t = ZenohTransport("client", [], [args.connect],
-                       extra=sa.settings(listening=False) if sa else None)
+    except TransportError as exc:
+        print(f"radical fleet: {exc}", file=sys.stderr)
+        return 1
     try:
         replies = t.get(f"radical-fleet/{args.fleet}/status/*", b"", timeout=args.timeout,
                         every=True)
@@ -231,4 +258,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {v:<16} {w['worker']:<28} {d['mode']:<11} "
                   f"{'-' if lag is None else f'{lag:7.2f}':>7} "
                   f"{'-' if age is None else f'{age:10.1f}':>10} {'-' if lost is None else f'{lost:.1f}'}")
+    print_roster(workers)
     return 0

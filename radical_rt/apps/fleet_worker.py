@@ -43,8 +43,10 @@ from collections.abc import Callable
 from typing import Any
 
 from radical_rt.apps.fleet_node import FleetNode
+from radical_rt.fleet.discovery import Discovery
 from radical_rt.fleet.ownership import owner
 from radical_rt.fleet.replica import CheckpointReplica, Replica, fleet_prefix
+from radical_rt.fleet.roster import Roster
 from radical_rt.fleet.view import KINDS, FleetView
 from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.transport import Transport
@@ -82,7 +84,10 @@ class ReplicaSink:
 class FleetWorker:
     """One worker of fleet ``fleet`` over ``transport`` (see the module docstring).
 
-    vehicles: the roster. make_processor(name) → a fresh StreamProcessor. node_kw: options of
+    vehicles: the static roster, edited by ``radical fleet add/remove`` through the fleet's
+    shared :class:`~radical_rt.fleet.roster.Roster`. discover: an input topic whose keys add
+    new vehicles when this worker is the fleet's discoverer (None: no discovery).
+    make_processor(name) → a fresh StreamProcessor. node_kw: options of
     the worker's :class:`FleetNode` (those of FilterNode). checkpoint_every_s: wall seconds
     between two replica checkpoints of a vehicle. claim_settle_s: how long a claim waits for rival claims before the worker serves.
     handover_wait_s: how long a vehicle no longer owned waits for its next owner to hold its
@@ -95,10 +100,10 @@ class FleetWorker:
                  make_processor: Callable[[str], StreamProcessor], *,
                  worker_id: str | None = None, checkpoint_every_s: float = 10.0,
                  claim_settle_s: float = 0.3, handover_wait_s: float = 3.0,
-                 node_kw: dict[str, Any] | None = None) -> None:
+                 node_kw: dict[str, Any] | None = None, discover: str | None = None) -> None:
         if not _NAME.match(fleet):
             raise ValueError(f"fleet name {fleet!r} must match [a-z0-9_-]+")
-        self.t, self.fleet, self.vehicles = transport, fleet, sorted(set(vehicles))
+        self.t, self.fleet = transport, fleet
         self.id = worker_id or new_worker_id()
         self.make_processor, self.node_kw = make_processor, dict(node_kw or {})
         self.checkpoint_every_s = checkpoint_every_s
@@ -114,6 +119,9 @@ class FleetWorker:
         self.fenced = False  # no router: serving nothing until the link is back
         self._wake = threading.Event()
         self.view = FleetView(self.id, self._wake.set)
+        self.roster = Roster(transport, fleet, self.id, vehicles, on_change=self._wake.set)
+        self.discovery = (Discovery(transport, self.roster, self.id, discover, self._wake.set)
+                          if discover else None)
         self._unowned_since: dict[str, float] = {}
         self._stop = threading.Event()
         self._decls: list[Any] = []
@@ -121,8 +129,14 @@ class FleetWorker:
         self._thread: threading.Thread | None = None
         self.replica: CheckpointReplica | None = None
 
+    @property
+    def vehicles(self) -> list[str]:
+        """The fleet's roster now (sorted)."""
+        return self.roster.vehicles()
+
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> FleetWorker:
+        self.roster.start()
         self.replica = CheckpointReplica(self.t, self.fleet, self.id)
         self.node = FleetNode(self.t, inbox_key=self.prefix + f"inbox/{self.id}",
                               checkpoint_path=ReplicaSink(self.replica),
@@ -158,6 +172,8 @@ class FleetWorker:
             self._release(v)
         for v in list(self.holding):
             self._drop_hold(v)
+        if self.discovery is not None:
+            self.discovery.stop()
         if self.node is not None:
             self.node.stop(drain_s=0.0, final_checkpoint=False)
         for d in reversed(self._decls):
@@ -165,6 +181,7 @@ class FleetWorker:
         self._decls.clear()
         if self.replica is not None:
             self.replica.close()
+        self.roster.close()
 
     # ------------------------------------------------------------------ reconciling
     def _run(self) -> None:
@@ -174,6 +191,9 @@ class FleetWorker:
             if self._stop.is_set():
                 break
             try:
+                self.roster.sync(self.view.live())  # anti-entropy (roster edits missed)
+                if self.discovery is not None:
+                    self.discovery.follow(self.view.live())
                 self.reconcile()
             except Exception:  # a bug: keep the worker alive, log it loudly
                 log.exception("fleet %s: reconcile failed", self.fleet)
@@ -331,6 +351,7 @@ class FleetWorker:
         return {"worker": self.id, "fleet": self.fleet, "live_workers": sorted(self.live_workers()),
                 "serving": sorted(self.serving), "holding": sorted(self.holding),
                 "owned": self.owned(), "fenced": self.fenced,
-                "takeovers": list(self.takeovers),
+                "takeovers": list(self.takeovers), "roster": self.roster.status(),
+                "discovery": self.discovery.status() if self.discovery is not None else None,
                 "replicas": {v: {"worker": r.worker, "seq": r.seq, "age_s": time.time() - r.t_wall}
                              for v, r in (self.replica.vehicles() if self.replica else {}).items()}}

@@ -40,6 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roster", metavar="FILE", help="with --fleet: vehicle names, one per line")
     p.add_argument("--workers", type=int, metavar="N", help="with --fleet: worker processes "
                    "(default: one per CPU core)")
+    p.add_argument("--discover", nargs="?", const="siru", choices=("siru", "st1", "st2", "temp"),
+                   metavar="TOPIC", help="with --fleet: add to the fleet's roster the vehicles "
+                   "whose inputs appear on radical/<V>/TOPIC (default siru, the one topic every "
+                   "source sends; temp is cheaper where all send it). One worker of the fleet "
+                   "watches; off by default (docs/fleet.md, \"Discovery\")")
     p.add_argument("--listen", metavar="EP", help="listen on this loopback endpoint "
                    f"(tcp/127.0.0.1:PORT; default {zconfig.DEFAULT_ENDPOINT} if no --connect)")
     p.add_argument("--connect", metavar="EP", help="connect to a router/peer at this endpoint")
@@ -110,7 +115,8 @@ def _check(args: argparse.Namespace) -> str | None:
     if args.fleet is None:
         if not args.vehicle:
             return "give at least one --vehicle V (or --fleet NAME with a roster)"
-        for opt, given in (("--roster", args.roster), ("--workers", args.workers)):
+        for opt, given in (("--roster", args.roster), ("--workers", args.workers),
+                           ("--discover", args.discover)):
             if given is not None:
                 return f"{opt} needs --fleet NAME"
     if args.duration is not None and args.duration <= 0:

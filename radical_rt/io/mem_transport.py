@@ -24,6 +24,7 @@ from radical_rt.io.transport import (
     QueryHandler,
     SampleCallback,
     TransportError,
+    key_intersects,
     key_matches,
 )
 
@@ -205,9 +206,11 @@ class InMemoryBus:
             d.fn(token, alive)
 
     def find(self, kind: str, key: str) -> list[_Decl]:
-        """The declarations of one kind whose key expression matches ``key``."""
+        """The declarations of one kind whose key expression matches ``key`` (queryables: whose
+        key expression intersects the query's, which may hold wildcards too)."""
+        match = key_intersects if kind == "qbl" else key_matches
         with self._lock:
-            return [d for d in self._decls if d.kind == kind and key_matches(d.key, key)]
+            return [d for d in self._decls if d.kind == kind and match(d.key, key)]
 
     def sync(self, timeout: float = 10.0) -> bool:
         """Threaded bus: wait until every delivery submitted so far has run (True if it did)."""

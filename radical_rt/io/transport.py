@@ -36,6 +36,7 @@ queryable, in order, like the Zenoh Python binding).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -101,6 +102,23 @@ class Transport(Protocol):
 def key_matches(expr: str, key: str) -> bool:
     """Whether a concrete key matches a key expression with ``*`` and ``**`` chunks."""
     return _match(expr.split("/"), key.split("/"))
+
+
+def key_intersects(a: str, b: str) -> bool:
+    """Whether two key expressions (each with ``*`` and ``**`` chunks) share a key: a query
+    ``x/*`` reaches a queryable ``x/y``, and a query ``x/y`` one on ``x/*``."""
+    return _inter(tuple(a.split("/")), tuple(b.split("/")))
+
+
+@functools.lru_cache(maxsize=4096)
+def _inter(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    if not a or not b:
+        return all(c == "**" for c in a + b)
+    if a[0] == "**":
+        return _inter(a[1:], b) or _inter(a, b[1:])
+    if b[0] == "**":
+        return _inter(a, b[1:]) or _inter(a[1:], b)
+    return (a[0] == b[0] or "*" in (a[0], b[0])) and _inter(a[1:], b[1:])
 
 
 def _match(e: list[str], k: list[str]) -> bool:

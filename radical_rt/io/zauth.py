@@ -21,8 +21,9 @@ node         everything under ``radical/**`` and ``radical-fleet/**`` (subscribe
              outputs, serve commands; a fleet's membership, ownership and checkpoints)
 monitor      subscribe outputs ``radical/*/{tlm/**,fault,diag,cmd_log}``; read-only commands on
              ``radical/*/cmd/read/<user>``; see liveliness tokens; ``radical fleet status``
+             and the fleet's roster
 operator     what a monitor may, plus subscribe inputs and every command on
-             ``radical/*/cmd/write/<user>``
+             ``radical/*/cmd/write/<user>``; ``radical fleet add/remove``
 ===========  ===========================================================================
 
 The user's own name is the last chunk of its command keys, so the node knows who sent a command
@@ -204,6 +205,18 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
         _rule("fleet_status", ["query"], ["ingress"], ["radical-fleet/*/status/*"]),
         _rule("fleet_status_out", ["reply", "declare_queryable"], ["egress"],
               ["radical-fleet/*/status/*"]),
+        # the fleet's roster (docs/fleet.md "Roster"): read the workers' rosters and see which
+        # workers are alive (monitor, operator); publish edits (operator: radical fleet add)
+        _rule("fleet_roster", ["query"], ["ingress"], ["radical-fleet/*/roster-state/*"]),
+        _rule("fleet_roster_out", ["reply", "declare_queryable"], ["egress"],
+              ["radical-fleet/*/roster-state/*"]),
+        _rule("fleet_workers", ["liveliness_query", "declare_liveliness_subscriber"], ["ingress"],
+              ["radical-fleet/*/worker/*"]),
+        _rule("fleet_workers_out", ["liveliness_token", "reply"], ["egress"],
+              ["radical-fleet/*/worker/*"]),
+        _rule("fleet_roster_edit", ["put"], ["ingress"], ["radical-fleet/*/roster/*"]),
+        _rule("fleet_roster_routes", ["declare_subscriber"], ["egress"],
+              ["radical-fleet/*/roster/*"]),
         _rule("inputs_put", ["put"], ["ingress"], inputs),
         # routes: a client only sends a put when it knows a matching subscriber, and the node
         # subscribes with wildcards (radical/<V>/*, radical/*/*): the declarations (key
@@ -220,10 +233,13 @@ def access_control(users: dict[str, str], tls: bool = False) -> dict[str, Any]:
     role_rules = {"node": ["node_all"], "sensor": ["inputs_put", "routes", "alive_read",
                                                    "alive_read_out"],
                   "monitor": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
-                              "routes", "fleet_status", "fleet_status_out"],
+                              "routes", "fleet_status", "fleet_status_out", "fleet_roster",
+                              "fleet_roster_out", "fleet_workers", "fleet_workers_out"],
                   "operator": ["outputs_read", "outputs_read_out", "alive_read", "alive_read_out",
                                "inputs_read", "inputs_read_out", "routes", "fleet_status",
-                               "fleet_status_out"]}
+                               "fleet_status_out", "fleet_roster", "fleet_roster_out",
+                               "fleet_workers", "fleet_workers_out", "fleet_roster_edit",
+                               "fleet_roster_routes"]}
     subjects, policies = [], []
     for i, (user, role) in enumerate(sorted(users.items())):
         sid = f"u{i}_{user}"

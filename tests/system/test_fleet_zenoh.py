@@ -70,8 +70,13 @@ def test_fleet_option_errors(capsys):
     assert "--connect" in capsys.readouterr().err
     assert radical_main(["node", "--vehicle", "v1", "--roster", "x.txt"]) == 2
     assert "--roster needs --fleet" in capsys.readouterr().err
-    assert radical_main(["node", "--fleet", "f1", "--connect", "tcp/127.0.0.1:9"]) == 2
-    assert "a fleet needs vehicles" in capsys.readouterr().err
+    assert radical_main(["node", "--vehicle", "v1", "--discover"]) == 2
+    assert "--discover needs --fleet" in capsys.readouterr().err
+    assert radical_main(["node", "--fleet", "f1", "--connect", "tcp/127.0.0.1:9",
+                         "--vehicle", "Bad!"]) == 2
+    assert "must match [a-z0-9_-]+" in capsys.readouterr().err
+    assert radical_main(["fleet", "add", "Bad!", "--fleet", "f1"]) == 2
+    assert "must match [a-z0-9_-]+" in capsys.readouterr().err
 
 
 def test_kill_one_worker_mid_stream(archives):

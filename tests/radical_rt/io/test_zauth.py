@@ -78,17 +78,23 @@ def test_acl_grants_each_user_only_its_own_command_keys():
         return {k for rid in policy[by_user[user]] for k in rules[rid]["key_exprs"]
                 if message in rules[rid]["messages"] and flow in rules[rid]["flows"]}
 
-    fleet_status = {"radical-fleet/*/status/*"}  # radical fleet status
+    fleet_status = {"radical-fleet/*/status/*",  # radical fleet status
+                    "radical-fleet/*/roster-state/*"}  # the roster (fleet add/remove confirm)
     assert keys("monitor", "query", "ingress") == {"radical/*/cmd/read/monitor", *fleet_status}
     assert keys("alice", "query", "ingress") == {"radical/*/cmd/read/alice",
                                                  "radical/*/cmd/write/alice", *fleet_status}
     assert keys("sensor", "query", "ingress") == set()
     assert keys("sensor", "put", "ingress") == {f"radical/*/{t}" for t in zauth.INPUT_TOPICS}
-    assert keys("monitor", "put", "ingress") == set() and keys("alice", "put", "ingress") == set()
+    assert keys("monitor", "put", "ingress") == set()
+    assert keys("alice", "put", "ingress") == {"radical-fleet/*/roster/*"}  # fleet add/remove
     assert "radical/*/siru" not in keys("monitor", "put", "egress")  # monitors never see inputs
     assert "radical/*/siru" in keys("alice", "put", "egress")
     assert keys("node", "put", "ingress") == {"radical/**", "radical-fleet/**"}
     assert keys("sensor", "put", "ingress").isdisjoint({"radical-fleet/**"})
+    roster_edit = "radical-fleet/*/roster/*"  # radical fleet add/remove: operators only
+    assert roster_edit not in keys("monitor", "put", "ingress")
+    assert roster_edit not in keys("sensor", "put", "ingress")
+    assert "radical-fleet/*/worker/*" in keys("monitor", "liveliness_query", "ingress")
     assert all("radical/*/cmd" not in keys(u, "query", "ingress") for u in by_user if u != "node")
 
 
