@@ -240,15 +240,18 @@ class FleetWorker:
     def _let_go(self, target: set[str]) -> None:
         """Release the vehicles no longer owned: at a cut once the next owner holds their
         inputs, without one after handover_wait_s; at once when another worker serves it with a
-        higher score (two owners after a healed partition: the lower one yields)."""
+        higher score (two owners after a healed partition: the lower one yields); at once when
+        it left the roster (no worker will hold it)."""
         now = time.monotonic()
+        roster = set(self.vehicles)
         for v in sorted(self.serving):
             rival = self.view.outranked(v, ("owner",))
             if v in target and not rival:
                 self._unowned_since.pop(v, None)
                 continue
             since = self._unowned_since.setdefault(v, now)
-            if self.view.others("hold", v) or rival or now - since >= self.handover_wait_s:
+            if (self.view.others("hold", v) or rival or v not in roster
+                    or now - since >= self.handover_wait_s):
                 self._release(v)
                 self._unowned_since.pop(v, None)
 

@@ -21,9 +21,9 @@ def _make(name: str):
     return build_processors([name])[name]
 
 
-def _worker(bus, wid: str, static, **kw) -> FleetWorker:
+def _worker(bus, wid: str, static, handover_wait_s: float = 0.5, **kw) -> FleetWorker:
     return FleetWorker(InMemoryTransport(bus), "f1", static, _make, worker_id=wid,
-                       checkpoint_every_s=0.5, handover_wait_s=0.5, **kw).start()
+                       checkpoint_every_s=0.5, handover_wait_s=handover_wait_s, **kw).start()
 
 
 def _servers(workers, v: str) -> list[str]:
@@ -33,7 +33,8 @@ def _servers(workers, v: str) -> list[str]:
 def test_add_serves_remove_lets_go_with_a_final_checkpoint(archives):
     bus = InMemoryBus()
     client = InMemoryTransport(bus)
-    workers = [_worker(bus, w, ["v1", "v2"]) for w in ("w-a", "w-b")]
+    # a long handover wait: a removed vehicle must be let go at once, not after it
+    workers = [_worker(bus, w, ["v1", "v2"], handover_wait_s=120.0) for w in ("w-a", "w-b")]
     try:
         wait_for(lambda: all(len(_servers(workers, v)) == 1 for v in ("v1", "v2")), 20,
                  what="the static roster served")
@@ -48,7 +49,7 @@ def test_add_serves_remove_lets_go_with_a_final_checkpoint(archives):
         t_served = msgpack.unpackb(raw, raw=False, strict_map_key=False)["t"]
         assert t_served > 0
 
-        late = _worker(bus, "w-c", ["v1"])  # joins with another file: takes the fleet's roster
+        late = _worker(bus, "w-c", ["v1"], handover_wait_s=120.0)  # joins with another file: takes the fleet's roster
         workers.append(late)
         assert late.vehicles == ["v1", "v2", "v9"]
         wait_for(lambda: all(len(_servers(workers, v)) == 1 for v in ("v1", "v2", "v9")), 20,
@@ -72,6 +73,7 @@ def test_add_serves_remove_lets_go_with_a_final_checkpoint(archives):
         assert workers[0].status()["roster"]["entries"]["v1"]["state"] == "removed"
     finally:
         for w in workers:
+            w.handover_wait_s = 0.5  # (a leaving worker waits this long for a holder)
             w.stop()
 
 
