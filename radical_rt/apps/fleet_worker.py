@@ -123,6 +123,8 @@ class FleetWorker:
         self.discovery = (Discovery(transport, self.roster, self.id, discover, self._wake.set)
                           if discover else None)
         self._unowned_since: dict[str, float] = {}
+        self._owned_key: tuple[frozenset[str], tuple[str, ...]] | None = None
+        self._owned: list[str] = []
         self._stop = threading.Event()
         self._decls: list[Any] = []
         self._token: Any = None
@@ -202,9 +204,13 @@ class FleetWorker:
         return self.view.live()
 
     def owned(self) -> list[str]:
-        """The vehicles this worker should serve now."""
-        live = self.view.live()
-        return [v for v in self.vehicles if owner(v, live) == self.id]
+        """The vehicles this worker should serve now (recomputed only when the live workers or
+        the roster change: N vehicles × W workers scores, 20 ms for 1000 × 20)."""
+        key = (frozenset(self.view.live()), tuple(self.vehicles))
+        if key != self._owned_key:
+            self._owned = [v for v in key[1] if owner(v, key[0]) == self.id]
+            self._owned_key = key
+        return list(self._owned)
 
     def reconcile(self) -> None:
         """One look at the fleet (controller thread): let go, hold, claim and take."""
