@@ -112,6 +112,7 @@ def run_fleet(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     if workers > 1:
         return _children(list(argv if argv is not None else sys.argv[1:]), workers)
     log.info("Numba kernels ready in %.2f s", warm_up(args.clock))
+    sys.setswitchinterval(args.gil_switch_ms * 1e-3)  # (radical node --gil-switch-ms)
     extra: dict[str, Any] = {"transport/link/tx/lease": LEASE_MS}
     if sa is not None:
         extra.update(sa.settings(listening=False))
