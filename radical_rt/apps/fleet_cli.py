@@ -216,25 +216,34 @@ def open_session(args: argparse.Namespace, role: str) -> Any:
                           extra=sa.settings(listening=False) if sa else None)
 
 
+def tool_session(args: argparse.Namespace, role: str, cmd: str) -> tuple[Any, int]:
+    """:func:`open_session` for a command-line tool: (session, 0), or (None, exit code) after
+    printing why (2: bad options, 1: no session)."""
+    from radical_rt.io.transport import TransportError
+
+    try:
+        return open_session(args, role), 0
+    except (zconfig.ZenohConfigError, zauth.AuthError) as exc:
+        print(f"{cmd}: error: {exc}", file=sys.stderr)
+        return None, 2
+    except TransportError as exc:
+        print(f"{cmd}: {exc}", file=sys.stderr)
+        return None, 1
+
+
 def run(args: argparse.Namespace) -> int:
     import msgpack
 
     from radical_rt.apps.fleet_roster_cli import print_roster, run_edit
-    from radical_rt.io.transport import TransportError
 
     if args.fleet_cmd in ("add", "remove"):
         return run_edit(args)
     if args.fleet_cmd != "status":
         print("radical fleet: give a subcommand: status, add or remove", file=sys.stderr)
         return 2
-    try:
-        t = open_session(args, "monitor")
-    except (zconfig.ZenohConfigError, zauth.AuthError) as exc:
-        print(f"radical fleet: error: {exc}", file=sys.stderr)
-        return 2
-    except TransportError as exc:
-        print(f"radical fleet: {exc}", file=sys.stderr)
-        return 1
+    t, rc = tool_session(args, "monitor", "radical fleet")
+    if t is None:
+        return rc
     try:
         replies = t.get(f"radical-fleet/{args.fleet}/status/*", b"", timeout=args.timeout,
                         every=True)

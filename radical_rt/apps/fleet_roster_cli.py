@@ -13,7 +13,7 @@ import argparse
 import sys
 from typing import Any
 
-from radical_rt.io import zauth, zconfig
+from radical_rt.io import zauth
 
 
 def add_edit_parsers(sub: Any) -> None:
@@ -33,10 +33,9 @@ def add_edit_parsers(sub: Any) -> None:
 
 
 def run_edit(args: argparse.Namespace) -> int:
-    from radical_rt.apps.fleet_cli import open_session
+    from radical_rt.apps.fleet_cli import tool_session
     from radical_rt.fleet.roster import NAME, origin_id
     from radical_rt.fleet.roster_edit import edit_roster
-    from radical_rt.io.transport import TransportError
 
     cmd = f"radical fleet {args.fleet_cmd}"
     bad = [v for v in [args.fleet, *args.vehicles] if not NAME.match(v)]
@@ -44,14 +43,9 @@ def run_edit(args: argparse.Namespace) -> int:
         why = f"names must match [a-z0-9_-]+: {bad}" if bad else "--timeout must be > 0"
         print(f"{cmd}: error: {why}", file=sys.stderr)
         return 2
-    try:
-        t = open_session(args, "operator")
-    except (zconfig.ZenohConfigError, zauth.AuthError) as exc:
-        print(f"{cmd}: error: {exc}", file=sys.stderr)
-        return 2
-    except TransportError as exc:
-        print(f"{cmd}: {exc}", file=sys.stderr)
-        return 1
+    t, rc = tool_session(args, "operator", cmd)
+    if t is None:
+        return rc
     try:
         res = edit_roster(t, args.fleet, args.fleet_cmd, args.vehicles, origin_id("cli"),
                           timeout=args.timeout)

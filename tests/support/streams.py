@@ -56,3 +56,14 @@ def damaged(messages):
             msg["t_bus"] -= 5.0  # time going backwards
             out.append((topic, ns, msgpack.packb(msg)))
     return out
+
+
+def bias_step_messages(directory: Path) -> list[tuple[str, int, bytes]]:
+    """The input messages of 300 s from bus time 1000 s with a gyro B bias step of 5 deg/hr at
+    120 s (an FDI alarm, its hypothesis bank, isolation and exclusion), written under
+    ``directory``."""
+    from perf.fdi_cases import fault_toml, synth
+
+    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0},
+                      duration=300.0, t_start=1000.0)
+    return input_messages(synth(text, directory / "bias_step.mcap"))

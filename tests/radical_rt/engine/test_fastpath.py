@@ -18,13 +18,12 @@ import msgpack
 import numpy as np
 import pytest
 
-from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.contract.params import ParamTable
 from radical_rt.engine import loop
 from tests.oracles.dense_engine import make_processor as dense_make_processor
 from tests.oracles.reference_engine import ReferenceEngine
-from tests.support.streams import damaged, input_messages, make_archive
+from tests.support.streams import bias_step_messages, damaged, input_messages, make_archive
 
 
 def run(messages, fast: bool, params=None):
@@ -89,10 +88,7 @@ def test_damaged_stream_is_bit_identical(nominal):
 @pytest.fixture(scope="module")
 def fault(tmp_path_factory):
     """300 s, gyro B bias step of 5 deg/hr at 120 s (FDI alarm, isolation, exclusion)."""
-    d = tmp_path_factory.mktemp("fastpath_fault")
-    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0},
-                      duration=300.0, t_start=1000.0)
-    return input_messages(synth(text, d / "fault.mcap"))
+    return bias_step_messages(tmp_path_factory.mktemp("fastpath_fault"))
 
 
 def test_fault_isolation_is_bit_identical(fault):

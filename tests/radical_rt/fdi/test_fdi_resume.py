@@ -12,11 +12,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
-from tests.support.node import input_messages
+from tests.support.streams import bias_step_messages
 
 KEYS = ("gyro", "t_alarm", "t_isolated", "t_onset_est", "t_snapshot", "test", "llr_margin")
 
@@ -24,10 +23,7 @@ KEYS = ("gyro", "t_alarm", "t_isolated", "t_onset_est", "t_snapshot", "test", "l
 @pytest.fixture(scope="module")
 def fault_archive(tmp_path_factory):
     """300 s from bus time 1000 s, gyro B bias step of 5 deg/hr at 120 s (tests/radical_rt/fdi/test_fdi.py)."""
-    d = tmp_path_factory.mktemp("fdi_resume")
-    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0},
-                      duration=300.0, t_start=1000.0)
-    return input_messages(synth(text, d / "short.mcap"))
+    return bias_step_messages(tmp_path_factory.mktemp("fdi_resume"))
 
 
 @pytest.fixture(scope="module")

@@ -10,19 +10,15 @@ import msgpack
 import numpy as np
 import pytest
 
-from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import make_processor
 from radical_rt.io import checkpoint as ckpt
-from tests.support.node import input_messages
+from tests.support.streams import bias_step_messages
 
 
 @pytest.fixture(scope="module")
 def fault_stream(tmp_path_factory):
     """300 s from bus time 1000 s, gyro B bias step of 5 deg/hr at 120 s."""
-    d = tmp_path_factory.mktemp("ckpt_light")
-    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 120.0, "bias_deg_hr": 5.0},
-                      duration=300.0, t_start=1000.0)
-    return input_messages(synth(text, d / "fault.mcap"))
+    return bias_step_messages(tmp_path_factory.mktemp("ckpt_light"))
 
 
 def _cut_points(msgs) -> dict[str, int]:
