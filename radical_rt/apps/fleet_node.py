@@ -71,7 +71,7 @@ class Slot:
         self.held_bytes, self.held_bound, self.held_dropped = 0, held_bound, 0
         self.sub: Any = None  # its subscription into the node's FIFO
         self.handles: list[Any] = []  # its queryables and liveliness token while serving
-        self.last_fed: bytes | None = None  # digest of the last input fed
+        self.last_fed: tuple[str, bytes] | None = None  # (topic, payload) of the last input fed
         self.skipped = 0  # held inputs dropped at the switch (the old owner had fed them)
         self.next_ckpt = float("inf")
         self.served, self.done = threading.Event(), threading.Event()
@@ -169,7 +169,7 @@ class FleetNode(FilterNode):
         self._push(slot, self.CUT)
         if not slot.done.wait(timeout):
             raise TimeoutError(f"{name}: the filter loop did not reach the cut")
-        return slot.last_fed
+        return input_digest(*slot.last_fed) if slot.last_fed is not None else None
 
     def drop(self, name: str) -> None:
         """Forget a held or cut vehicle: its subscription undeclared (a served one: cut first)."""
@@ -205,9 +205,9 @@ class FleetNode(FilterNode):
         if topic[:1] == "@":
             self._on_marker(slot, topic, data)
         elif slot.state == SERVING:
-            super().take_input(key, data)
+            self.take_vehicle_input(slot.vehicle, topic, data)
             if topic in _FED:
-                slot.last_fed = input_digest(topic, data)
+                slot.last_fed = (topic, data)  # (its digest is computed at the cut only)
         elif slot.state == HELD:
             slot.keep(key, data)
 

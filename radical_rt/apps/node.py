@@ -299,11 +299,13 @@ class FilterNode:
     def take_input(self, key: str, data: bytes) -> None:
         """One input sample from the FIFO (filter loop thread): route it to its vehicle and feed
         it. A subclass may extend it (a fleet's handover: :mod:`radical_rt.apps.fleet_node`)."""
-        t_recv = time.monotonic_ns() if self.timing is not None else 0
         v = self.vehicles.get(key.split("/", 2)[1])
-        if v is None:  # a vehicle this node does not serve
-            return
-        topic = key[len(v.prefix):]
+        if v is not None:  # (else a vehicle this node does not serve)
+            self.take_vehicle_input(v, key[len(v.prefix):], data)
+
+    def take_vehicle_input(self, v: Vehicle, topic: str, data: bytes) -> None:
+        """One sample on ``radical/<v>/<topic>`` (filter loop thread): count and feed it."""
+        t_recv = time.monotonic_ns() if self.timing is not None else 0
         if topic in INPUT_TOPICS or topic == EOS_TOPIC:
             input_seen(self, v, self._mono())
         if topic not in INPUT_TOPICS:

@@ -15,6 +15,7 @@ from radical_rt.apps.fleet_worker import FleetWorker
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.fleet.ownership import assign
 from radical_rt.io.mem_transport import InMemoryBus, InMemoryTransport
+from tests.support.fleet import FleetWatch
 from tests.support.node import input_messages, wait_for
 
 VEHICLES = ["v1", "v2", "v3", "v4", "v5"]
@@ -24,28 +25,11 @@ def _make(name: str):
     return build_processors([name])[name]
 
 
-class OwnerWatch:
-    """Tracks the ownership tokens: the most owners any vehicle ever had at once."""
-
-    def __init__(self, t) -> None:
-        self.lock = threading.Lock()
-        self.now: dict[str, set[str]] = {}
-        self.most = 0
-        t.liveliness_subscribe("radical-fleet/f1/owner/*/*", self._on)
-
-    def _on(self, key: str, alive: bool) -> None:
-        v, w = key.split("/")[-2:]
-        with self.lock:
-            s = self.now.setdefault(v, set())
-            (s.add if alive else s.discard)(w)
-            self.most = max(self.most, len(s))
-
-
 @pytest.fixture()
 def fleet():
     bus = InMemoryBus()
     client = InMemoryTransport(bus)
-    watch = OwnerWatch(client)
+    watch = FleetWatch(client, "f1")
     workers: list[FleetWorker] = []
 
     def add(wid: str) -> FleetWorker:
