@@ -46,6 +46,9 @@ from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.model import refresh_axes
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
 
+_USED_KEY = {k: k + "_used" for k in ("st1", "st2", "parity")}  # counters of updates by kind
+_EDITED_KEY = {k: k + "_edited" for k in ("st1", "st2", "parity")}
+
 
 class Engine(LoopShell, EngineState):
     """The 3 + 5n + 3 state UD-factorized RADICAL filter (n gyros, ST1 reference, ST2 relative)."""
@@ -227,9 +230,9 @@ class Engine(LoopShell, EngineState):
         """Diagnostics and counters of one tracker update the kernel ran."""
         self.diag_last[kind] = (innov, sig, nis)
         if edited:
-            self.counters[kind + "_edited"] += 1
+            self.counters[_EDITED_KEY[kind]] += 1
         else:
-            self.counters[kind + "_used"] += 1
+            self.counters[_USED_KEY[kind]] += 1
             self.nis_sum[kind] += nis
             if self.locked:
                 rec = self.nis_locked[kind]

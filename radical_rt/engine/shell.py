@@ -24,6 +24,7 @@ from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 
 ST_KIND = {1: "st1", 2: "st2"}
+ST_CONSIDER = {1: "st1_consider", 2: "st2_consider"}  # counter of considered updates
 ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
 MODE_CODE = {"init": steps.MODE_INIT, "converging": steps.MODE_CONVERGING,
              "converged": steps.MODE_CONVERGED, "degraded": steps.MODE_DEGRADED}  # IO_MODE
@@ -107,27 +108,24 @@ class LoopShell:
     def _trackers_taken(self, events, e: int, e_stop: int) -> None:
         """The bookkeeping of the rows e..e_stop−1 of an event block the kernel completed (an
         invalid sample it only counted is skipped): last valid epoch, FDI history and, where the
-        update ran, diagnostics and counters."""
-        for r in range(e, e_stop):
-            self._tracker_taken(events, r)
-
-    def _tracker_taken(self, events, r: int) -> None:
-        """:meth:`_trackers_taken` of row r."""
-        _status, edited, updated, consider = events.out_i[r].tolist()
-        if updated < 0:
-            return
-        j, n_stars, _valid, _seq = events.i[r].tolist()
-        t_epoch = float(events.f[r, 0])
-        self.last_valid_st[j] = t_epoch
-        if self.fdi is not None:
-            self.fdi.on_tracker(j, t_epoch, events.f[r, 1:5].copy(), n_stars)
-        if not updated:
-            return
-        kind = ST_KIND[j]
-        if consider:
-            self.counters[kind + "_consider"] += 1
-        out_f = events.out_f[r].copy()
-        self._update_done(kind, out_f[1:4], out_f[4:7], float(out_f[0]), edited != 0)
+        update ran, diagnostics and counters (:meth:`_update_done`). The rows' integers are read
+        in one go (the loop runs once or twice per release)."""
+        f, out_f, fdi, last = events.f, events.out_f, self.fdi, self.last_valid_st
+        rows = zip(range(e, e_stop), events.out_i[e:e_stop].tolist(),
+                   events.i[e:e_stop].tolist(), strict=True)
+        for r, (_st, edited, updated, consider), (j, n_stars, _v, _s) in rows:
+            if updated < 0:
+                continue
+            t_epoch = float(f[r, 0])
+            last[j] = t_epoch
+            if fdi is not None:
+                fdi.on_tracker(j, t_epoch, f[r, 1:5].copy(), n_stars)
+            if not updated:
+                continue
+            if consider:
+                self.counters[ST_CONSIDER[j]] += 1
+            row = out_f[r].copy()
+            self._update_done(ST_KIND[j], row[1:4], row[4:7], float(row[0]), edited != 0)
 
     # ---------------------------------------------------------------- kernel state
     def _loop_begin(self) -> tuple:
@@ -153,11 +151,10 @@ class LoopShell:
 
     def _loop_end(self) -> None:
         """The scalar state and the counters of a call back from the io arrays."""
-        io, cnt = self._io, self._cnt
-        self.t, self.locked_since = float(io[FL.IO_T]), float(io[FL.IO_LOCKED_SINCE])
-        self.att_valid = io[FL.IO_ATT_VALID] != 0.0
-        self.mode = _MODE_NAME[float(io[FL.IO_MODE])]
-        c = cnt.tolist()
+        v, c = self._io.tolist(), self._cnt.tolist()  # (plain floats and ints: one read each)
+        self.t, self.locked_since = v[FL.IO_T], v[FL.IO_LOCKED_SINCE]
+        self.att_valid = v[FL.IO_ATT_VALID] != 0.0
+        self.mode = _MODE_NAME[v[FL.IO_MODE]]
         self.flags = c[FL.CNT_FLAGS]
         counters = self.counters
         for name, i in self._COUNTED:
@@ -172,11 +169,10 @@ class LoopShell:
         if c[FL.CNT_NUMERIC]:
             self.last_numeric = numeric_reason(c[FL.CNT_NUMERIC_CODE])
         if c[FL.CNT_PAR_USED] or c[FL.CNT_PAR_EDITED]:
-            self._parity_done(c[FL.CNT_PAR_USED], float(io[FL.IO_NIS_SUM_PAR]))
+            self._parity_done(c[FL.CNT_PAR_USED], v[FL.IO_NIS_SUM_PAR])
         if c[FL.CNT_PAR_SUMS]:
-            self._sum_pending = ((float(io[FL.IO_PAR_NU]), float(io[FL.IO_PAR_RHO]),
-                                  float(io[FL.IO_PAR_T0]), float(io[FL.IO_PAR_Z]))
-                                 if c[FL.CNT_PAR_STAT] else ())
+            self._sum_pending = ((v[FL.IO_PAR_NU], v[FL.IO_PAR_RHO], v[FL.IO_PAR_T0],
+                                  v[FL.IO_PAR_Z]) if c[FL.CNT_PAR_STAT] else ())
 
     #: (counter, CNT field) added after every call
     _COUNTED = (("siru_used", FL.CNT_USED), ("siru_undetermined", FL.CNT_UNDETERMINED),
