@@ -1,5 +1,5 @@
-"""The FDI's history (docs/fdi.md §3.1): the recent gyro samples in compact blocks, and the engine
-snapshots the hypothesis bank and the rollback start from. Used by
+"""The FDI's history (docs/fdi.md §3.1): the recent gyro samples and tracker samples in compact
+blocks, and the engine snapshots the hypothesis bank and the rollback start from. Used by
 :class:`radical_rt.fdi.monitor.FaultMonitor`; the bank's kernels read the blocks in place."""
 
 from __future__ import annotations
@@ -107,6 +107,78 @@ class SampleBuffer:
         return self._f, self._i, self._b, self.i0, self.end
 
 
+class TrackerBuffer:
+    """The valid tracker samples the engine received, in order, numbered by consecutive sequence
+    numbers, as rows of two growing arrays with a moving start: float rows (epoch [s, gyro time
+    line], q_st_from_inertial (4,) scalar last) and int rows (seq, tracker j = 1 | 2, n_stars),
+    48 bytes per sample. Indexing gives the bank's tuple ``(seq, t_epoch, j, q (4,) copy,
+    n_stars)`` (negative indices from the end). A checkpoint takes the rows as five columns
+    (:meth:`get_state`), a copy of a few arrays instead of one tuple per sample."""
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        self._f, self._i = np.empty((256, 5)), np.empty((256, 3), np.int64)
+        self.i0 = self.end = 0
+
+    def __len__(self) -> int:
+        return self.end - self.i0
+
+    def append(self, seq: int, t_epoch: float, j: int, q, n_stars: int) -> None:
+        """One sample (q copied); ``seq`` follows the last one."""
+        if self.end == len(self._i):
+            self._make_room()
+        r = self.end
+        f = self._f[r]
+        f[0] = t_epoch
+        f[1:5] = q
+        self._i[r] = (seq, j, n_stars)
+        self.end = r + 1
+
+    def _make_room(self) -> None:
+        """Move the kept rows to the front; grow (×2) when they fill half the arrays."""
+        keep, cap = self.end - self.i0, len(self._i)
+        if keep >= cap // 2:
+            cap *= 2
+        f, i = np.empty((cap, 5)), np.empty((cap, 3), np.int64)
+        f[:keep], i[:keep] = self._f[self.i0:self.end], self._i[self.i0:self.end]
+        self._f, self._i, self.i0, self.end = f, i, 0, keep
+
+    def __getitem__(self, k: int) -> tuple:
+        n = self.end - self.i0
+        if k < 0:
+            k += n
+        if not 0 <= k < n:
+            raise IndexError("tracker sample index out of range")
+        r = self.i0 + k
+        seq, j, n_stars = self._i[r].tolist()
+        return seq, float(self._f[r, 0]), j, self._f[r, 1:5].copy(), n_stars
+
+    def drop_through(self, seq: int) -> None:
+        """Forget the samples numbered ≤ seq."""
+        if self.end > self.i0:
+            first = int(self._i[self.i0, 0])
+            self.i0 = min(self.end, self.i0 + max(0, seq - first + 1))
+
+    def get_state(self, rows: bool = True) -> dict[str, np.ndarray]:
+        """The rows in use as copied columns (checkpoints): seq, t, tracker, n_stars (m,), q
+        (m, 4); ``rows=False``: none of them (m = 0)."""
+        s = slice(self.i0, self.end) if rows else slice(0, 0)
+        f, i = self._f[s], self._i[s]
+        return {"seq": i[:, 0].copy(), "t": f[:, 0].copy(), "tracker": i[:, 1].copy(),
+                "q": f[:, 1:5].copy(), "n_stars": i[:, 2].copy()}
+
+    def set_state(self, st: dict[str, np.ndarray]) -> None:
+        """Put :meth:`get_state` columns back (validated by the caller: consecutive numbers,
+        ranges, shapes)."""
+        m = len(st["seq"])
+        self._f, self._i = np.empty((max(2 * m, 256), 5)), np.empty((max(2 * m, 256), 3), np.int64)
+        self._f[:m, 0], self._f[:m, 1:5] = st["t"], st["q"]
+        self._i[:m, 0], self._i[:m, 1], self._i[:m, 2] = st["seq"], st["tracker"], st["n_stars"]
+        self.i0, self.end = 0, m
+
+
 @dataclass
 class Snapshot:
     """Engine state at a window close (after the correction), for the bank and the rollback."""
@@ -122,4 +194,4 @@ class Snapshot:
     N: np.ndarray
 
 
-__all__ = ["SampleBuffer", "Snapshot"]
+__all__ = ["SampleBuffer", "Snapshot", "TrackerBuffer"]

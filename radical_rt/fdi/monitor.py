@@ -52,7 +52,7 @@ from radical_rt.fdi.fdi_detect import (
     cusum_threshold,
     thresholds,
 )
-from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot
+from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot, TrackerBuffer
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
 from radical_rt.fdi.monitor_isolation import IsolationSteps
 from radical_rt.fdi.monitor_state import MonitorState
@@ -84,7 +84,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
         self._th_key = None
         self.det: ParityDetector | None = None
         self.gbuf = SampleBuffer()
-        self.trk: deque = deque()
+        self.trk = TrackerBuffer()  # the valid tracker samples since the oldest snapshot
         self.trk_seq = 0
         self.snaps: deque[Snapshot] = deque()
         self.bank: HypothesisBank | None = None
@@ -142,7 +142,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
     def on_tracker(self, j: int, t_epoch: float, q_meas, n_stars: int) -> None:
         """Every valid tracker sample the engine receives (before its update)."""
         self.trk_seq += 1
-        self.trk.append((self.trk_seq, t_epoch, j, q_meas, n_stars))
+        self.trk.append(self.trk_seq, t_epoch, j, q_meas, n_stars)
 
     def on_parity_sum(self, eng, stat: tuple) -> None:
         """Every closed parity sum, at the window hook of its close: its statistic ``stat`` =
@@ -317,8 +317,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
         keep_seq = self.snaps[0].trk_seq if self.snaps else self.trk_seq
         if self.bank is not None:
             keep_seq = min(keep_seq, self.bank.trk_seq)
-        while self.trk and self.trk[0][0] <= keep_seq:
-            self.trk.popleft()
+        self.trk.drop_through(keep_seq)
 
     def _snapshot(self, eng) -> None:
         if not eng.att_valid or not np.isfinite(eng.t):

@@ -41,8 +41,7 @@ class MonitorState:
                 "parity_log": np.array(self.parity_log, np.float64).reshape(-1, 2),
                 "failed": sorted(self.failed_by_fdi), "flagged_only": sorted(self.flagged_only),
                 "counts": dict(self.counts), "gbuf": gbuf,
-                "trk": [(s, t, j, np.asarray(q, np.float64), n) for s, t, j, q, n in self.trk]
-                if history else [],
+                "trk": self.trk.get_state(rows=history),
                 "snaps": [vars(s) for s in self.snaps] if history else [],
                 "det": None if self.det is None else self.det.get_state(),
                 "bank": None if b is None else {"snap": vars(b.snap), "t_alarm": b.t_alarm,
@@ -59,7 +58,7 @@ class MonitorState:
         self.failed_by_fdi, self.flagged_only = set(st["failed"]), set(st["flagged_only"])
         self.counts.update(st["counts"])
         self.gbuf.set_state(st["gbuf"])
-        self.trk = deque(st["trk"])
+        self.trk.set_state(st["trk"])
         self.snaps = deque(Snapshot(**s) for s in st["snaps"])
         self._th_key, self.det = None, None
         if st["det"] is not None:

@@ -2,7 +2,7 @@
 
 One file per node process holds every vehicle it serves. On disk it is a msgpack map::
 
-    {"schema": "radical.node_checkpoint/2", "sha256": hex digest of body, "body": bytes}
+    {"schema": "radical.node_checkpoint/3", "sha256": hex digest of body, "body": bytes}
 
 where ``body`` is itself msgpack::
 
@@ -42,7 +42,9 @@ from radical_rt.stream.processor import StreamProcessor
 from radical_rt.stream.stream_log import bump_applied
 from radical_rt.stream.telemetry import PacketError, PacketSpec, parse_packets
 
-SCHEMA = "radical.node_checkpoint/2"
+SCHEMA = "radical.node_checkpoint/3"  # /3: the FDI's tracker history as columns
+#: schemas read: /2 (the FDI's tracker history as a list of rows) is converted on restore
+READ_SCHEMAS = ("radical.node_checkpoint/2", SCHEMA)
 MAX_BYTES = 256 * 2**20  # a checkpoint file larger than this is refused unread
 
 
@@ -129,8 +131,9 @@ def loads(data: bytes, path: str = "(bytes)") -> dict[str, Any]:
     except Exception as exc:
         raise CheckpointError(f"checkpoint {path}: not a msgpack checkpoint ({exc})") from None
     got = outer.get("schema") if isinstance(outer, dict) else type(outer).__name__
-    if got != SCHEMA:
-        raise CheckpointError(f"checkpoint {path}: schema {str(got)[:60]!r}, expected {SCHEMA!r}")
+    if got not in READ_SCHEMAS:
+        raise CheckpointError(f"checkpoint {path}: schema {str(got)[:60]!r}, expected {SCHEMA!r}"
+                              f" (or {READ_SCHEMAS[0]!r})")
     body, digest = outer.get("body"), outer.get("sha256")
     if not isinstance(body, bytes) or not isinstance(digest, str) \
             or hashlib.sha256(body).hexdigest() != digest:
@@ -145,7 +148,7 @@ def loads(data: bytes, path: str = "(bytes)") -> dict[str, Any]:
         if not isinstance(st, dict) or st.get("vehicle") != name:
             raise CheckpointError(f"checkpoint {path}: vehicle entry {str(name)[:40]!r} does "
                                   "not carry its own vehicle id")
-    doc["schema"] = SCHEMA
+    doc["schema"] = got
     return doc
 
 

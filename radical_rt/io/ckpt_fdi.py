@@ -106,24 +106,51 @@ def _snapshot(s: Any, where: str, eng) -> dict[str, Any]:
     return out
 
 
-def _trackers(v: Any, trk_seq: int) -> list[tuple]:
-    if not isinstance(v, list) or len(v) > cv.MAX_ROWS:
+def _trackers(v: Any, trk_seq: int) -> dict[str, np.ndarray]:
+    """The tracker history: columns seq, t, tracker, q, n_stars (this version's
+    TrackerBuffer.get_state), or the earlier list of rows [seq, t, tracker, q, n_stars]; either
+    way the columns for ``set_state``, each value checked (consecutive sequence numbers up to
+    trk_seq, unit quaternions)."""
+    w = "fdi.monitor.trk"
+    if isinstance(v, list):
+        v = _tracker_rows(v)
+    if not isinstance(v, dict):
+        raise cv.CheckpointFieldError(f"{w}: expected the tracker sample columns")
+    seq = _rows(cv.need(v, "seq", w), w + ".seq", "<i8", (), 1, trk_seq)
+    m = len(seq)
+    out = {"seq": seq, "t": cv.array(cv.need(v, "t", w), w + ".t", "<f8", (m,), -T_MAX, T_MAX),
+           "tracker": cv.array(cv.need(v, "tracker", w), w + ".tracker", "<i8", (m,), 1, 2),
+           "q": cv.array(cv.need(v, "q", w), w + ".q", "<f8", (m, 4), -1.0, 1.0),
+           "n_stars": cv.array(cv.need(v, "n_stars", w), w + ".n_stars", "<i8", (m,), 0,
+                               2**31 - 1)}
+    if m > 1 and not (np.diff(seq) == 1).all():
+        raise cv.CheckpointFieldError(f"{w}.seq: sequence numbers must be consecutive")
+    if m and (np.abs(np.linalg.norm(out["q"], axis=1) - 1.0) > 1e-6).any():
+        raise cv.CheckpointFieldError(f"{w}.q: must be unit quaternions")
+    return out
+
+
+def _tracker_rows(v: list) -> dict[str, Any]:
+    """The list-of-rows form (checkpoints before the columns) as encoded columns."""
+    if len(v) > cv.MAX_ROWS:
         raise cv.CheckpointFieldError("fdi.monitor.trk: expected a list of tracker samples")
-    out, prev = [], None
+    cols: dict[str, list] = {"seq": [], "t": [], "tracker": [], "q": [], "n_stars": []}
     for i, row in enumerate(v):
         w = f"fdi.monitor.trk[{i}]"
         if not isinstance(row, list) or len(row) != 5:
             raise cv.CheckpointFieldError(f"{w}: expected [seq, t, tracker, q, n_stars]")
-        seq = cv.number(row[0], w + ".seq", 1, trk_seq, integer=True)
-        if prev is not None and seq != prev + 1:
-            raise cv.CheckpointFieldError(f"{w}.seq: sequence numbers must be consecutive")
-        prev = seq
-        q = cv.array(row[3], w + ".q", "<f8", (4,), -1.0, 1.0)
-        cv.unit_quaternion(q, w + ".q")
-        out.append((int(seq), cv.number(row[1], w + ".t", -T_MAX, T_MAX),
-                    int(cv.number(row[2], w + ".tracker", 1, 2, integer=True)), q,
-                    int(cv.number(row[4], w + ".n_stars", 0, 2**31 - 1, integer=True))))
-    return out
+        cols["seq"].append(int(cv.number(row[0], w + ".seq", 1, cv.INT_MAX, integer=True)))
+        cols["t"].append(cv.number(row[1], w + ".t", -T_MAX, T_MAX))
+        cols["tracker"].append(int(cv.number(row[2], w + ".tracker", 1, 2, integer=True)))
+        cols["q"].append(cv.array(row[3], w + ".q", "<f8", (4,), -1.0, 1.0))
+        cols["n_stars"].append(int(cv.number(row[4], w + ".n_stars", 0, 2**31 - 1,
+                                             integer=True)))
+    m = len(v)
+    arrays = {"seq": np.array(cols["seq"], np.int64), "t": np.array(cols["t"], np.float64),
+              "tracker": np.array(cols["tracker"], np.int64),
+              "q": np.array(cols["q"], np.float64).reshape(m, 4),
+              "n_stars": np.array(cols["n_stars"], np.int64)}
+    return {k: _enc(a) for k, a in arrays.items()}
 
 
 def check(m: Any, sp) -> dict[str, Any]:

@@ -82,7 +82,10 @@ def test_damaged_fdi_state_is_refused(runs, field, value, needle):
         rows[[0, -1]] = rows[[-1, 0]]
         a["data"] = rows.tobytes()
     elif value == "gap":
-        m["trk"][1][0] += 1
+        a = m["trk"]["seq"]
+        seq = np.frombuffer(a["data"], "<i8").copy()
+        seq[1] += 1
+        a["data"] = seq.tobytes()
     elif value == "bad_d":
         s = m["snaps"][0]["d"]
         d = np.frombuffer(s["data"], "<f8").copy()
@@ -100,3 +103,43 @@ def test_damaged_fdi_state_is_refused(runs, field, value, needle):
     with pytest.raises(ckpt.CheckpointError, match=needle):
         ckpt.restore(sp, doc["vehicles"]["v"])
     assert msgpack.packb(ckpt.capture(sp, "v")) == before  # nothing changed
+
+
+def _as_schema_2(doc: dict) -> bytes:
+    """The checkpoint ``doc`` (as ckpt.read returns it) in the format before /3: the FDI's
+    tracker history as a list of rows [seq, t, tracker, q, n_stars], schema /2."""
+    import hashlib
+
+    doc = {k: v for k, v in doc.items() if k != "schema"}
+    for st in doc["vehicles"].values():
+        m = st["running"]["fdi"]["monitor"]
+        col = {k: np.frombuffer(a["data"], a["dtype"]).reshape(a["shape"])
+               for k, a in m["trk"].items()}
+        m["trk"] = [[int(s), float(t), int(j), {"dtype": "<f8", "shape": [4], "data": q.tobytes()},
+                     int(n)] for s, t, j, q, n in zip(col["seq"], col["t"], col["tracker"],
+                                                      col["q"], col["n_stars"], strict=True)]
+    body = msgpack.packb(doc, use_bin_type=True)
+    return msgpack.packb({"schema": "radical.node_checkpoint/2",
+                          "sha256": hashlib.sha256(body).hexdigest(), "body": body},
+                         use_bin_type=True)
+
+
+def test_schema_2_checkpoint_resumes_the_same(fault_archive, runs, tmp_path):
+    """A checkpoint of the earlier format (schema /2, the tracker history as rows) restores the
+    same tracker history as the current one (columns) and continues to the same isolation."""
+    ref, _faults, cut, _n, path = runs
+    old = tmp_path / "old.ckpt"
+    old.write_bytes(_as_schema_2(ckpt.read(str(path))))
+    sp_new = build_processors(["v"], resume=str(path))["v"]
+    sp_old = build_processors(["v"], resume=str(old))["v"]
+    trk_new, trk_old = sp_new.engine.fdi.trk, sp_old.engine.fdi.trk
+    assert len(trk_old) == len(trk_new) > 3
+    for k in (0, len(trk_new) // 2, -1):
+        a, b = trk_old[k], trk_new[k]
+        assert a[:3] == b[:3] and a[4] == b[4] and np.array_equal(a[3], b[3])
+    for topic, _ns, data in fault_archive[cut:]:
+        sp_old.feed(topic, data)
+    sp_old.end_stream(None)
+    got, want = sp_old.engine.fdi.isolations, ref.engine.fdi.isolations
+    assert [{k: r[k] for k in KEYS} for r in got] == [{k: r[k] for k in KEYS} for r in want]
+    assert np.array_equal(sp_old.engine.xp, ref.engine.xp)
