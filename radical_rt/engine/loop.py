@@ -52,22 +52,34 @@ from radical_rt.engine.loop_layout import (
     CFG_ST_REF_STARS,
     CFG_TIMING_CONSIDER,
     CNT_CONSIDER,
+    CNT_CONSIDER_ST,
+    CNT_DIAG_ST,
     CNT_EDITED,
+    CNT_EDITED_ST,
+    CNT_FIRST_UPDATED,
+    CNT_FIRST_VALID,
     CNT_FLAGS,
     CNT_FLAGS0,
     CNT_GAPS,
     CNT_INVALID_ST,
+    CNT_LOCKED_ST,
     CNT_MASKED,
     CNT_PAR_SUMS,
     CNT_PRE_INIT,
     CNT_STATUS,
+    CNT_TRK_ADDED,
     CNT_UNDETERMINED,
     CNT_UPDATED,
     CNT_USED,
+    CNT_USED_ST,
     IO_ATT_VALID,
+    IO_DIAG_ST1,
+    IO_DIAG_ST2,
     IO_LAST_ST,
     IO_MODE,
     IO_NIS,
+    IO_NIS_LOCKED_ST,
+    IO_NIS_SUM_ST,
     IO_SIG_T,
     IO_T,
     IO_WAKE_E,
@@ -260,11 +272,59 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     return R_DONE
 
 
+@inline_kernel
+def _book_tracker(j, epoch, q_meas, n_stars, E, cfg, io, cnt, trk_f, trk_i, trk_end, trk_seq0):
+    """The bookkeeping of a tracker j sample the kernel completed (nothing for an invalid one,
+    cnt[CNT_UPDATED] < 0): appended to the FDI's tracker history (trk_f (cap, 5) epoch [s],
+    q_st_from_inertial (4,); trk_i (cap, 3) seq, j, n_stars; rows from trk_end, numbered from
+    trk_seq0 + 1; trk_end < 0: no FDI), then, for an update that ran, the counters of its kind
+    (used or edited, considered, used while locked), its NIS added to the sums IO_NIS_SUM_ST
+    and (time line locked: σ_t ≤ timing_consider) IO_NIS_LOCKED_ST, and its NIS, innovation
+    and σ kept as the kind's last diagnostics (IO_DIAG_ST<j>). CNT_FIRST_VALID and
+    CNT_FIRST_UPDATED name the call's first valid and first updated tracker (Python keeps its
+    maps in that order)."""
+    upd = cnt[CNT_UPDATED]
+    if upd < 0:
+        return
+    if cnt[CNT_FIRST_VALID] == 0:
+        cnt[CNT_FIRST_VALID] = j
+    if trk_end >= 0:
+        r = trk_end + cnt[CNT_TRK_ADDED]
+        trk_f[r, 0] = epoch
+        for c in range(4):
+            trk_f[r, 1 + c] = q_meas[c]
+        cnt[CNT_TRK_ADDED] += 1
+        trk_i[r, 0], trk_i[r, 1], trk_i[r, 2] = trk_seq0 + cnt[CNT_TRK_ADDED], j, n_stars
+    if upd == 0:
+        return
+    k = j - 1
+    if cnt[CNT_FIRST_UPDATED] == 0:
+        cnt[CNT_FIRST_UPDATED] = j
+    cnt[CNT_DIAG_ST + k] = 1
+    base = IO_DIAG_ST1 if j == 1 else IO_DIAG_ST2
+    innov, sig = E[_INNOV], E[_SIG]
+    io[base] = io[IO_NIS]
+    for r in range(3):
+        io[base + 1 + r] = innov[r]
+        io[base + 4 + r] = sig[r]
+    if cnt[CNT_CONSIDER]:
+        cnt[CNT_CONSIDER_ST + k] += 1
+    if cnt[CNT_EDITED]:
+        cnt[CNT_EDITED_ST + k] += 1
+        return
+    cnt[CNT_USED_ST + k] += 1
+    io[IO_NIS_SUM_ST + k] += io[IO_NIS]
+    if io[IO_SIG_T] <= cfg[CFG_TIMING_CONSIDER]:
+        cnt[CNT_LOCKED_ST + k] += 1
+        io[IO_NIS_LOCKED_ST + k] += io[IO_NIS]
+
+
 @kernel
 def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
                  clock_I, clock_F, bfb, bib, bbb, blay, s_t, s_locked, s_sig_t, wake_t, wake_e,
-                 s_att, s_last1, s_last2, s_mode, s_flags, s_nis_par):
+                 s_att, s_last1, s_last2, s_mode, s_flags, s_nis_par, s_nis1, s_nis2, s_lck1,
+                 s_lck2, trk_f, trk_i, trk_end, trk_seq0):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -288,9 +348,14 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at that sample.
-    s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`)."""
+    s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`); s_nis1, s_nis2, s_lck1,
+    s_lck2: the trackers' NIS sums (all used updates; those while locked). Every tracker sample
+    completed is booked by :func:`_book_tracker` (trk_f, trk_i, trk_end, trk_seq0: the FDI's
+    tracker history there)."""
     load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
                  s_mode, s_flags, s_nis_par)
+    io[IO_NIS_SUM_ST], io[IO_NIS_SUM_ST + 1] = s_nis1, s_nis2
+    io[IO_NIS_LOCKED_ST], io[IO_NIS_LOCKED_ST + 1] = s_lck1, s_lck2
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -313,6 +378,8 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         for r in range(3):
             evo_f[e, 1 + r] = innov[r]
             evo_f[e, 4 + r] = sig[r]
+        _book_tracker(j, epoch, ev_f[e, 1:5], ev_i[e, 1], E, cfg, io, cnt, trk_f, trk_i, trk_end,
+                      trk_seq0)
         # the bank takes every sample whose update the kernel completed, also one after which
         # the window hook has work (R_ON_WINDOW: Python then finds the bank caught up)
         if (reason == R_DONE or reason == R_ON_WINDOW) and cnt[CNT_UPDATED] >= 0 and bank \

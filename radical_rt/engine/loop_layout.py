@@ -4,7 +4,8 @@ run_release`), declared once with :class:`radical_rt.contract.layout.Fields`.
 ``cfg`` (float64): the engine's scalar configuration, rebuilt after every parameter change
 (``LoopShell._loop_config``); ``io`` (float64): the scalar state the kernel loads, updates and
 hands back, and the outputs of a tracker update; ``cnt`` (int64): flags, counters and status codes.
-``IO_LAST_ST + j`` is the last valid epoch of tracker j = 1, 2.
+``IO_LAST_ST + j`` is the last valid epoch of tracker j = 1, 2; ``X_ST + j − 1`` the per-tracker
+fields of size 2.
 """
 
 from __future__ import annotations
@@ -57,6 +58,13 @@ IO_PAR_NIS = IO.add("par_nis", doc="NIS of the last parity update (out)")
 IO_NIS_SUM_PAR = IO.add("nis_sum_par", doc="sum of the NIS of the used parity updates (in/out)")
 IO_WAKE_EVERY = IO.add("wake_every",
                        doc="1: the window hook has work after every tracker sample (caller)")
+IO_NIS_SUM_ST = IO.add("nis_sum_st", 2, doc="per tracker: sum of the NIS of its used updates "
+                                            "(in/out)")
+IO_NIS_LOCKED_ST = IO.add("nis_locked_st", 2, doc="per tracker: the same sum over the updates "
+                                                  "made while the time line was locked (in/out)")
+IO_DIAG_ST1 = IO.add("diag_st1", 7, unit="-, rad, rad",
+                     doc="ST1's last update: NIS, innovation (3,), its 1 sigma (3,) (out)")
+IO_DIAG_ST2 = IO.add("diag_st2", 7, unit="-, rad, rad", doc="the same for ST2 (out)")
 IO.freeze()
 IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
 
@@ -84,6 +92,16 @@ CNT_PAR_EDITED = CNT.add("par_edited", doc="parity updates edited (+=)")
 CNT_PAR_SUMS = CNT.add("par_sums", doc="parity sums queued (+=)")
 CNT_PAR_STAT = CNT.add("par_stat", doc="1: the FDI statistic of the last queued sum is valid")
 CNT_PAR_EARLY = CNT.add("par_early", doc="queued sums updated early, the queue being full (+=)")
+CNT_USED_ST = CNT.add("used_st", 2, doc="per tracker: updates used (+=)")
+CNT_EDITED_ST = CNT.add("edited_st", 2, doc="per tracker: updates edited (+=)")
+CNT_CONSIDER_ST = CNT.add("consider_st", 2, doc="per tracker: updates with the gyro calibration "
+                                                "considered (+=)")
+CNT_LOCKED_ST = CNT.add("locked_st", 2, doc="per tracker: used updates while the time line was "
+                                            "locked (+=)")
+CNT_DIAG_ST = CNT.add("diag_st", 2, doc="per tracker: 1 when IO_DIAG_ST<j> was written")
+CNT_FIRST_UPDATED = CNT.add("first_updated", doc="tracker of the call's first update (0: none)")
+CNT_FIRST_VALID = CNT.add("first_valid", doc="tracker of the call's first valid sample (0: none)")
+CNT_TRK_ADDED = CNT.add("trk_added", doc="valid tracker samples appended to the FDI history (+=)")
 CNT.freeze()
 CNT_END = CNT.end  # the per-call counters are CNT_USED..CNT_END−1
 CNT_INVALID_ST = CNT_INVALID_ST1 - 1  # CNT_INVALID_ST + j: tracker j

@@ -61,6 +61,10 @@ class LoopShell:
                                                      self._no_clock_F)
         ev_f, ev_i, evo_f, evo_i = events.f, events.i, events.out_f, events.out_i
         n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
+        # the kernel appends the valid tracker samples to the FDI's history (room made per call:
+        # the window hook may have cleared it)
+        trk, trk_f, trk_i = (None, self._no_trk_f, self._no_trk_i) if fdi is None else (
+            fdi.trk, None, None)
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
         io, cnt, run = self._io, self._cnt, lp.run_release
@@ -75,23 +79,24 @@ class LoopShell:
                                       n_ev - e, fdi.llr_threshold(self))
                 # the bank reads the FDI history (the copy's blocks above when there is one)
                 g_f, g_i, g_b = hist.blocks()[:3]
+            if trk is not None:
+                trk_f, trk_i = trk.reserve(n_ev - e)
             b = self._loop_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, evo_f, evo_i,
                 g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3],
-                b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10])
+                b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11], b[12],
+                b[13], b[14], trk_f, trk_i, -1 if trk is None else trk.end,
+                0 if trk is None else fdi.trk_seq)
             if bank is not None:
                 bank.kernel_done()
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
-            self._loop_end()
-            if e_stop > e:  # events the kernel completed
-                self._trackers_taken(events, e, e_stop)
+            self._loop_end()  # (with the bookkeeping of the tracker events it completed)
             e = e_stop
             if stage == 1:  # the hook after tracker event e
-                self._trackers_taken(events, e, e + 1)
                 t_hook = float(ev_f[e, 0])
                 e += 1
                 self.on_window(t_hook)
@@ -104,28 +109,8 @@ class LoopShell:
     _no_bank = idle_kernel_args()
     # ... and for its prediction when none is asked for (pred[0] = 0)
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
-
-    def _trackers_taken(self, events, e: int, e_stop: int) -> None:
-        """The bookkeeping of the rows e..e_stop−1 of an event block the kernel completed (an
-        invalid sample it only counted is skipped): last valid epoch, FDI history and, where the
-        update ran, diagnostics and counters (:meth:`_update_done`). The rows' integers are read
-        in one go (the loop runs once or twice per release)."""
-        f, out_f, fdi, last = events.f, events.out_f, self.fdi, self.last_valid_st
-        rows = zip(range(e, e_stop), events.out_i[e:e_stop].tolist(),
-                   events.i[e:e_stop].tolist(), strict=True)
-        for r, (_st, edited, updated, consider), (j, n_stars, _v, _s) in rows:
-            if updated < 0:
-                continue
-            t_epoch = float(f[r, 0])
-            last[j] = t_epoch
-            if fdi is not None:
-                fdi.on_tracker(j, t_epoch, f[r, 1:5].copy(), n_stars)
-            if not updated:
-                continue
-            if consider:
-                self.counters[ST_CONSIDER[j]] += 1
-            row = out_f[r].copy()
-            self._update_done(ST_KIND[j], row[1:4], row[4:7], float(row[0]), edited != 0)
+    # ... and for the FDI's tracker history when there is no FDI
+    _no_trk_f, _no_trk_i = np.zeros((0, 5)), np.zeros((0, 3), np.int64)
 
     # ---------------------------------------------------------------- kernel state
     def _loop_begin(self) -> tuple:
@@ -145,9 +130,11 @@ class LoopShell:
         cfg[FL.CFG_HOOK_SUM] = 1.0 if fdi is not None or self.excitation is not None else 0.0
         sig_t = self.timing_sigma()
         self.locked = sig_t <= self.si.timing_consider_s  # for the NIS statistics of this call
+        nis, locked = self.nis_sum, self.nis_locked
         return (self.t, self.locked_since, sig_t, wake_t, wake_e,
                 1.0 if self.att_valid else 0.0, last.get(1, -math.inf), last.get(2, -math.inf),
-                MODE_CODE[self.mode], int(self.flags), self.nis_sum.get("parity", 0.0))
+                MODE_CODE[self.mode], int(self.flags), nis.get("parity", 0.0), nis.get("st1", 0.0),
+                nis.get("st2", 0.0), locked["st1"][1], locked["st2"][1])
 
     def _loop_end(self) -> None:
         """The scalar state and the counters of a call back from the io arrays."""
@@ -173,6 +160,46 @@ class LoopShell:
         if c[FL.CNT_PAR_SUMS]:
             self._sum_pending = ((v[FL.IO_PAR_NU], v[FL.IO_PAR_RHO], v[FL.IO_PAR_T0],
                                   v[FL.IO_PAR_Z]) if c[FL.CNT_PAR_STAT] else ())
+        if c[FL.CNT_FIRST_VALID]:
+            self._trackers_done(v, c)
+
+    def _trackers_done(self, v: list, c: list) -> None:
+        """The bookkeeping of the tracker samples a call completed (:func:`loop._book_tracker`;
+        v, c: the io and cnt arrays as lists): last valid epochs, the FDI history's new rows,
+        and per tracker kind the last diagnostics, the counters and NIS sums. New keys of these
+        maps are added in the order of the samples, as sample-by-sample bookkeeping would."""
+        first = c[FL.CNT_FIRST_VALID]
+        last = self.last_valid_st
+        for j in (first, 3 - first):
+            t_last = v[FL.IO_LAST_ST + j]
+            if t_last != last.get(j, -math.inf):
+                last[j] = t_last
+        added = c[FL.CNT_TRK_ADDED]
+        if added and self.fdi is not None:
+            self.fdi.trk.end += added
+            self.fdi.trk_seq += added
+        first = c[FL.CNT_FIRST_UPDATED]
+        if not first:
+            return
+        counters = self.counters
+        for j in (first, 3 - first):
+            k = j - 1
+            if not c[FL.CNT_DIAG_ST + k]:
+                continue
+            kind, d = ST_KIND[j], (FL.IO_DIAG_ST1 if j == 1 else FL.IO_DIAG_ST2)
+            self.diag_last[kind] = (np.array(v[d + 1:d + 4]), np.array(v[d + 4:d + 7]), v[d])
+            if c[FL.CNT_CONSIDER_ST + k]:
+                counters[ST_CONSIDER[j]] += c[FL.CNT_CONSIDER_ST + k]
+            if c[FL.CNT_EDITED_ST + k]:
+                counters[kind + "_edited"] += c[FL.CNT_EDITED_ST + k]
+            used = c[FL.CNT_USED_ST + k]
+            if used:
+                counters[kind + "_used"] += used
+                self.nis_sum[kind] = v[FL.IO_NIS_SUM_ST + k]
+            if c[FL.CNT_LOCKED_ST + k]:
+                rec = self.nis_locked[kind]
+                rec[0] += c[FL.CNT_LOCKED_ST + k]
+                rec[1] = v[FL.IO_NIS_LOCKED_ST + k]
 
     #: (counter, CNT field) added after every call
     _COUNTED = (("siru_used", FL.CNT_USED), ("siru_undetermined", FL.CNT_UNDETERMINED),

@@ -136,10 +136,18 @@ class TrackerBuffer:
         self._i[r] = (seq, j, n_stars)
         self.end = r + 1
 
-    def _make_room(self) -> None:
-        """Move the kept rows to the front; grow (×2) when they fill half the arrays."""
+    def reserve(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Room for m more rows after ``end`` (the engine's compiled release appends the samples
+        it completes itself, then the owner advances ``end``); returns the float and int arrays."""
+        if self.end + m > len(self._i):
+            self._make_room(m)
+        return self._f, self._i
+
+    def _make_room(self, m: int = 1) -> None:
+        """Move the kept rows to the front; grow (×2) while they and m more fill half the
+        arrays."""
         keep, cap = self.end - self.i0, len(self._i)
-        if keep >= cap // 2:
+        while keep + m > cap // 2:
             cap *= 2
         f, i = np.empty((cap, 5)), np.empty((cap, 3), np.int64)
         f[:keep], i[:keep] = self._f[self.i0:self.end], self._i[self.i0:self.end]
