@@ -188,7 +188,8 @@ class EngineState:
         }
 
     def residual_stats(self) -> dict[str, Any]:
-        """Last innovation, its 1σ and NIS per measurement kind, and mean NIS so far."""
+        """Last innovation, its 1σ and NIS per measurement kind, and mean NIS so far (diag_last
+        holds them as arrays or lists)."""
         out: dict[str, Any] = {}
         for kind, (innov, sig, nis) in self.diag_last.items():
             used = self.counters.get(f"{kind}_used", 0)

@@ -187,7 +187,7 @@ class LoopShell:
             if not c[FL.CNT_DIAG_ST + k]:
                 continue
             kind, d = ST_KIND[j], (FL.IO_DIAG_ST1 if j == 1 else FL.IO_DIAG_ST2)
-            self.diag_last[kind] = (np.array(v[d + 1:d + 4]), np.array(v[d + 4:d + 7]), v[d])
+            self.diag_last[kind] = (v[d + 1:d + 4], v[d + 4:d + 7], v[d])  # (lists: read once)
             if c[FL.CNT_CONSIDER_ST + k]:
                 counters[ST_CONSIDER[j]] += c[FL.CNT_CONSIDER_ST + k]
             if c[FL.CNT_EDITED_ST + k]:
