@@ -29,7 +29,6 @@ from mcap import records as mr
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.writer import CompressionType, IndexType, Writer
 
 from radical_rt.contract.conventions import t_to_ns
 from radical_rt.contract.schemas import SCHEMAS, schema_name
@@ -40,6 +39,7 @@ from radical_rt.io.archive_scan import (
     one_line,
     rebuild_summary,
 )
+from radical_rt.io.mcap_write import McapWriter
 
 log = logging.getLogger(__name__)
 _first = operator.itemgetter(0)
@@ -50,8 +50,7 @@ TRUTH_TOPICS = ("/truth/attitude", "/truth/params", "/truth/siru_time")
 AUDIT_TOPICS = ("/cmd_log",)  # the node's audit trail (docs/security.md), recorded by radical record
 SCENARIO_METADATA = "radical.scenario"
 
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE, "": CompressionType.NONE}
+_COMPRESSION = {"zstd": "zstd", "lz4": "lz4", "none": "", "": ""}  # name -> MCAP chunk compression
 
 
 class ArchiveError(Exception):
@@ -84,8 +83,7 @@ class ArchiveWriter:
             raise ArchiveError(f"{self.path}: unknown compression {compression!r} (zstd, lz4, none)")
         try:
             self._file = open(self.path, "wb")
-            self._w = Writer(self._file, chunk_size=chunk_size, compression=comp,
-                             index_types=IndexType.ALL, enable_crcs=True)
+            self._w = McapWriter(self._file, chunk_size=chunk_size, compression=comp)
             self._w.start(profile="", library=library)
             if scenario is not None:
                 meta = {str(k): str(v) for k, v in scenario.items()}
@@ -138,11 +136,12 @@ class ArchiveWriter:
         pub = log_time_ns if publish_time_ns is None else publish_time_ns
         if not (0 <= log_time_ns < 1 << 64 and 0 <= pub < 1 << 64):
             raise ArchiveError(f"{self.path}: {topic}: time {log_time_ns}/{pub} ns not uint64")
-        cid = self._channel(topic)
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._channel(topic)
         seq = self._seq[cid]
         self._seq[cid] = (seq + 1) & 0xFFFFFFFF  # MCAP sequence is uint32
-        self._w.add_message(cid, log_time=int(log_time_ns), data=data, publish_time=int(pub),
-                            sequence=seq)
+        self._w.add_message(cid, int(log_time_ns), data, int(pub), seq)
         self.message_count += 1
         if (self._flush_every_s is not None
                 and time.monotonic() - self._last_flush >= self._flush_every_s):
@@ -339,8 +338,7 @@ def recover(path_in: str | os.PathLike[str], path_out: str | os.PathLike[str]) -
     tmp, n = out + ".recover-tmp", 0
     try:
         with ArchiveReader(path_in, validate_crcs=True) as r, open(tmp, "wb") as f:
-            w = Writer(f, compression=CompressionType.ZSTD, index_types=IndexType.ALL,
-                       enable_crcs=True)
+            w = McapWriter(f)
             h = r._header
             w.start(profile=h.profile if h else "", library=h.library if h else "radical-rt")
             for md in r.metadata_records:
