@@ -42,14 +42,22 @@ def providers() -> dict[str, str]:
     return found
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Parser with one sub-parser per subcommand (available, unavailable or not installed)."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Parser with one sub-parser per subcommand (available, unavailable or not installed).
+
+    ``command``: the subcommand a command line names (its first word); when it is a provided
+    one, only its sub-parser is built, so that the other subcommands' modules are not imported
+    (``radical process`` starts without the replayer, the monitors or the fleet). The parse of
+    that command line is the same: the other sub-parsers only serve ``radical --help`` and the
+    message for an unknown command, which a command line naming a provided one never prints."""
     parser = argparse.ArgumentParser(
         prog="radical", description="RADICAL-RT: RIMU calibration and attitude determination")
     parser.add_argument("--version", action="version", version=f"radical {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    found = providers()
+    found = {command: BUILTIN[command]} if command in BUILTIN else providers()
     names = [*CONTRACT_COMMANDS, *(n for n in found if n not in CONTRACT_COMMANDS)]
+    if command in found:
+        names = [command]
     for name in names:
         module = found.get(name)
         if module is None:
@@ -117,8 +125,9 @@ def _stub(sub, name: str, note: str, error: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `radical` console script."""
-    parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(words[0] if words and not words[0].startswith("-") else None)
+    args, extra = parser.parse_known_args(words)
     if extra and not getattr(args, "stub_command", False):  # (a stub takes any arguments)
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "handler", None):

@@ -90,3 +90,24 @@ def test_the_engine_names_no_upper_package_even_by_string():
                 hits += [f"{path.relative_to(ROOT)}:{node.lineno}: {m.group(0)}…"
                          for m in UPPER.finditer(node.value)]
     assert hits == []
+
+
+def test_a_command_line_imports_only_its_command():
+    """`radical process ...` builds only the process sub-parser: no other subcommand's module (nor
+    the tools built on the engine) is imported; its parse is the full parser's."""
+    import subprocess
+
+    code = ("import sys; from radical_rt.apps import cli; p = cli.build_parser('process'); "
+            "a = p.parse_args(['process', 'x.mcap', '--quiet']); "
+            "print(a.handler.__module__, a.inputs, a.quiet); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('replayer', 'monitors', 'mission') or m.startswith('radical_rt.apps.')))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    first, mods = r.stdout.splitlines()
+    assert first == "radical_rt.apps.batch ['x.mcap'] True"
+    assert mods == "['radical_rt.apps.batch', 'radical_rt.apps.cli']"
+    full = cli.build_parser().parse_args(["process", "x.mcap", "--quiet"])
+    assert (full.handler.__module__, full.inputs, full.quiet) == ("radical_rt.apps.batch",
+                                                                 ["x.mcap"], True)
