@@ -171,6 +171,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock", choices=("reconstruct", "naive"), default="reconstruct",
                    help="SIRU time tags: online reconstruction (default) or naive bus tags")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    p.set_defaults(exit_fast=True)  # every file is closed when run() returns (cli.exit_fast)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
+import os
 import re
 import sys
+import threading
 import warnings
 from importlib.metadata import entry_points
 from types import ModuleType
@@ -124,7 +127,11 @@ def _stub(sub, name: str, note: str, error: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the `radical` console script."""
+    """Entry point of the `radical` console script (``argv`` None: the process's command line).
+
+    A subcommand whose files are all written and closed when its handler returns may set the
+    parser default ``exit_fast=True`` (``radical process`` does): on the process's own command
+    line (``argv`` None) its exit code then ends the process at once (:func:`exit_fast`)."""
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(words[0] if words and not words[0].startswith("-") else None)
     args, extra = parser.parse_known_args(words)
@@ -136,10 +143,35 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():  # (restores the display when main returns)
             warnings.showwarning = _show_warning
-            return int(args.handler(args) or 0)
+            code = int(args.handler(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    if argv is None and getattr(args, "exit_fast", False):
+        exit_fast(code)
+    return code
+
+
+def exit_fast(code: int) -> None:
+    """End the process now with exit ``code``, skipping the interpreter's teardown (about 0.35 s
+    after a `radical process` run: freeing Numba's dispatchers, LLVM's and every module's objects
+    one by one; nothing of it reaches a file). Standard output and error are flushed and logging
+    is shut down (its handlers flushed and closed) first; the exit handlers (atexit) do not run:
+    after `radical process` they are Numba's and llvmlite's shutdown flags, the finalizers of
+    Numba's dispatchers (which skip themselves at exit) and of its runtime (memory only), tqdm's
+    monitor thread (a daemon) and multiprocessing's (no children); no file is left open. Returns, leaving the normal exit to do its part, when a
+    thread that is not a daemon still runs (the normal exit waits for it) or a flush fails (e.g.
+    a closed pipe: the normal exit reports it)."""
+    if any(t.is_alive() and not t.daemon for t in threading.enumerate()
+           if t is not threading.main_thread()):
+        return
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except Exception:  # noqa: BLE001 - the normal exit reports it as Python does
+        return
+    logging.shutdown()
+    os._exit(code)
 
 
 if __name__ == "__main__":
