@@ -181,8 +181,8 @@ class McapWriter:
             offsets.append(mr.SummaryOffset(group_opcode=opcode, group_start=summary_start + begin,
                                             group_length=rb.count - begin))
         offset_start = summary_start + rb.count
-        for record in offsets:
-            record.write(rb)
+        for offset in offsets:
+            offset.write(rb)
         summary = rb.end()
         crc = zlib.crc32(_FOOTER_HEAD.pack(Opcode.FOOTER, 20, summary_start, offset_start),
                          zlib.crc32(summary))
