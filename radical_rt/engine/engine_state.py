@@ -175,7 +175,7 @@ class EngineState:
 
     def att_sigma(self) -> list[float]:
         """Attitude 1σ, body axes [rad] (from the UD variances)."""
-        return np.sqrt(self.variances()[:3]).tolist()
+        return [_sqrt(v) for v in self.variances()[:3].tolist()]
 
     def snapshot(self) -> dict[str, Any]:
         """Everything a telemetry packet may contain (SI, plain Python types)."""
@@ -191,11 +191,11 @@ class EngineState:
         """Last innovation, its 1σ and NIS per measurement kind, and mean NIS so far (diag_last
         holds them as arrays or lists)."""
         out: dict[str, Any] = {}
+        counters, nis_sum = self.counters, self.nis_sum
         for kind, (innov, sig, nis) in self.diag_last.items():
-            used = self.counters.get(f"{kind}_used", 0)
-            out[kind] = {"innov": np.atleast_1d(innov).tolist(), "sigma": np.atleast_1d(sig).tolist(),
-                         "nis": float(nis),
-                         "nis_mean": self.nis_sum.get(kind, 0.0) / used if used else None}
+            used = counters.get(USED_KEY.get(kind) or kind + "_used", 0)
+            out[kind] = {"innov": _as_list(innov), "sigma": _as_list(sig), "nis": float(nis),
+                         "nis_mean": nis_sum.get(kind, 0.0) / used if used else None}
         return out
 
     # ---------------------------------------------------------------- checkpoints
@@ -228,6 +228,24 @@ class EngineState:
 
     def state_restored(self) -> None:
         """Rebuild what is derived from the restored arrays (the engine overrides this)."""
+
+
+#: the counters of the used and of the edited updates per measurement kind
+USED_KEY = {k: k + "_used" for k in ("st1", "st2", "parity")}
+EDITED_KEY = {k: k + "_edited" for k in ("st1", "st2", "parity")}
+
+
+def _as_list(x: Any) -> list:
+    """``np.atleast_1d(x).tolist()``, without the call for a 1-D array (the usual case)."""
+    if type(x) is np.ndarray and x.ndim == 1:
+        return x.tolist()
+    return np.atleast_1d(x).tolist()
+
+
+def _sqrt(v: float) -> float:
+    """``float(np.sqrt(v))`` of a float: math.sqrt (the same correctly rounded result) where it
+    is defined, NumPy's for the rest (a negative or NaN variance gives its NaN)."""
+    return math.sqrt(v) if v >= 0.0 else float(np.sqrt(v))
 
 
 def param_slice(layout: StateLayout, group: str) -> slice:

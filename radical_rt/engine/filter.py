@@ -31,7 +31,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.contract.geometry import Geometry
 from radical_rt.contract.params import ParamTable, to_si
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
-from radical_rt.engine.engine_state import EngineState
+from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY, EngineState
 from radical_rt.engine.events import (
     EV_BEGIN_ATTITUDE_INIT,
     EV_FLUSH,
@@ -45,9 +45,6 @@ from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.model import refresh_axes
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
-
-_USED_KEY = {k: k + "_used" for k in ("st1", "st2", "parity")}  # counters of updates by kind
-_EDITED_KEY = {k: k + "_edited" for k in ("st1", "st2", "parity")}
 
 
 class Engine(LoopShell, EngineState):
@@ -230,9 +227,9 @@ class Engine(LoopShell, EngineState):
         """Diagnostics and counters of one tracker update the kernel ran."""
         self.diag_last[kind] = (innov, sig, nis)
         if edited:
-            self.counters[_EDITED_KEY[kind]] += 1
+            self.counters[EDITED_KEY[kind]] += 1
         else:
-            self.counters[_USED_KEY[kind]] += 1
+            self.counters[USED_KEY[kind]] += 1
             self.nis_sum[kind] += nis
             if self.locked:
                 rec = self.nis_locked[kind]
@@ -278,16 +275,16 @@ class Engine(LoopShell, EngineState):
 
     def latency_residual(self) -> float:
         """Residual tracker latency estimate τ̂ [s] (true − configured)."""
-        return float(self.xp[self.layout["lat"].start - 3])
+        return float(self.xp[self._lat_col - 3])
 
     def latency_estimate(self) -> dict[str, float]:
         """Tracker latency: configured, residual τ̂ and total estimate, with the 1σ of τ [s]."""
-        k = self.layout["lat"].start
+        k = self._lat_col
         ud.variances(self.U, self.d, self.ws.var)
         tau = self.latency_residual()
-        return {"configured_s": float(self.si.latency_st_s), "residual_s": tau,
-                "estimate_s": float(self.si.latency_st_s) + tau,
-                "sigma_s": float(math.sqrt(max(self.ws.var[k], 0.0)))}
+        configured = float(self.si.latency_st_s)
+        return {"configured_s": configured, "residual_s": tau, "estimate_s": configured + tau,
+                "sigma_s": math.sqrt(max(self.ws.var[k].item(), 0.0))}
 
     # ---------------------------------------------------------------- health
     def _check(self, status: int) -> None:
