@@ -24,6 +24,7 @@ from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.stream.telemetry import PacketSpec, build, read_field
 
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
+_MIN, _MAX = np.minimum.reduce, np.maximum.reduce  # ndarray.min/max without their wrappers
 
 
 class StreamOutputs:
@@ -103,9 +104,12 @@ class StreamOutputs:
         """After a window close at event time t [s]: a fault message when the flags changed,
         the window packets and the diag that are due."""
         self.packet_wake = None  # the packets' due() below moves their schedule
-        if self.flags != self._last_flags:
-            self._emit_fault(t)
         memo: dict[str, Any] = {}  # the packets and the diag of this close read one state
+        flags = self.flags
+        if flags != self._last_flags:
+            self._emit_fault(t)  # (publishing may end a held flag: the field is read again)
+        else:
+            memo["flags"] = flags  # the packets' flags field, int(self.flags)
         for spec in self.packets.values():
             if spec.trigger == "window" and spec.due(t):
                 self._out.append((f"tlm/{spec.name}", build(spec, self, memo=memo)))
@@ -173,11 +177,23 @@ class StreamOutputs:
         return {"v": 1, "stream": self.streams.index, "stream_info": self.streams.info(),
                 "t": e.t, "flags": field("flags"), "mode": e.mode,
                 "residuals": field("residuals"), "counters": field("counters"),
-                "engine_counters": dict(sorted(e.counters.items())), "rejected": dict(self.rejected),
+                "engine_counters": self._engine_counters(), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),
                 "latency": field("latency"), "fdi": field("fdi"),
-                "ud": {"d_min": float(e.d.min()), "d_max": float(e.d.max())},
+                "ud": {"d_min": float(_MIN(e.d)), "d_max": float(_MAX(e.d))},
                 "excitation": e.excitation.report() if e.excitation is not None else None}
+
+    def _engine_counters(self) -> dict[str, int]:
+        """``dict(sorted(engine.counters.items()))``, the key order kept while the keys (in
+        their insertion order) stay the same."""
+        c = self.engine.counters
+        keys = tuple(c)
+        order = self._counter_order
+        if order is None or order[0] != keys:
+            order = self._counter_order = (keys, sorted(keys))
+        return {k: c[k] for k in order[1]}
+
+    _counter_order: tuple[tuple[str, ...], list[str]] | None = None
 
     def take_outputs(self) -> list[tuple[str, dict[str, Any]]]:
         out, self._out = self._out, []
