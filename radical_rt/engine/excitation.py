@@ -49,8 +49,8 @@ def rotation_angle_between(p: np.ndarray, q: np.ndarray) -> float:
     p⁻¹∘q, written out in floats (no BLAS: the same bits on every CPU). Well conditioned for
     small angles, where 2·acos(|p·q|) loses half the digits (an angle of 1e-5 rad came out
     different in the 5th digit between two CPUs)."""
-    px, py, pz, pw = (float(v) for v in p)
-    qx, qy, qz, qw = (float(v) for v in q)
+    px, py, pz, pw = p.tolist()
+    qx, qy, qz, qw = q.tolist()
     w = pw * qw + px * qx + py * qy + pz * qz
     vx = pw * qx - qw * px - (py * qz - pz * qy)
     vy = pw * qy - qw * py - (pz * qx - px * qz)
@@ -70,6 +70,7 @@ class ExcitationMonitor:
         self._slices = [(g, layout[g]) for g in PARAM_GROUPS]
         self._axis_idx = np.concatenate([np.arange(layout[g].start, layout[g].stop)
                                          for g in ("lam", "du", "dv")])
+        self._axis_block = np.ix_(self._axis_idx, self._axis_idx)  # their rows and columns of P
         self._G = None if triads is None else _axis_rows(layout, *triads)
         npar = layout.n_states - 3  # group averages over the parameter states, as products
         self._count = np.zeros((len(self._slices), npar))
@@ -109,7 +110,7 @@ class ExcitationMonitor:
         lv = np.log(np.maximum(var, 1e-300))
         # log det of the joint scaled-axis block (λ, du, dv of every gyro): a rotation about a new
         # axis informs a_iᵀe there, a combination of the three, before any marginal σ falls
-        blk = P[self._axis_idx][:, self._axis_idx]
+        blk = P[self._axis_block]
         sign, ld = np.linalg.slogdet(blk / np.sqrt(np.outer(np.diag(blk), np.diag(blk))))
         lv = np.append(lv, ld + lv[self._axis_idx].sum() if sign > 0 else lv[self._axis_idx].sum())
         h = self._hist
