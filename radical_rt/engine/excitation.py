@@ -106,13 +106,15 @@ class ExcitationMonitor:
             self._rot += rotation_angle_between(self._q_last, q)
         self._q_last = q.copy()
         self._t_last = t
-        var = np.diag(P).copy()
+        var = P.diagonal().copy()
         lv = np.log(np.maximum(var, 1e-300))
         # log det of the joint scaled-axis block (λ, du, dv of every gyro): a rotation about a new
         # axis informs a_iᵀe there, a combination of the three, before any marginal σ falls
         blk = P[self._axis_block]
-        sign, ld = np.linalg.slogdet(blk / np.sqrt(np.outer(np.diag(blk), np.diag(blk))))
-        lv = np.append(lv, ld + lv[self._axis_idx].sum() if sign > 0 else lv[self._axis_idx].sum())
+        dg = blk.diagonal()  # (the outer product of the diagonal, as np.outer makes it)
+        sign, ld = np.linalg.slogdet(blk / np.sqrt(dg[:, None] * dg[None, :]))
+        lv_axes = lv[self._axis_idx].sum()
+        lv = np.concatenate((lv, [ld + lv_axes if sign > 0 else lv_axes]))
         h = self._hist
         h.append((t, lv, self._rot))
         while len(h) > 1 and h[1][0] <= t - self.window_s:
@@ -125,11 +127,10 @@ class ExcitationMonitor:
         above = (var[3:] > conv_var).astype(float)
         conv = (self._count @ above) == 0.0
         groups, warn = {}, []
-        for k, (g, _sl) in enumerate(self._slices):
-            gain = float(gains[k])
+        for (g, _sl), gain, conv_g in zip(self._slices, gains.tolist(), conv.tolist(), strict=True):
             excited = gain >= self.gain_min
-            groups[g] = {"gain": round(gain, 5), "converged": bool(conv[k]), "excited": excited}
-            if rotating and not conv[k] and not excited:
+            groups[g] = {"gain": round(gain, 5), "converged": conv_g, "excited": excited}
+            if rotating and not conv_g and not excited:
                 warn.append(g)
         self.last = {"t": t, "window_s": t - t0, "rotation_deg": math.degrees(self._rot - rot0),
                      "rotating": rotating, "groups": groups, "not_excited": warn}
@@ -143,9 +144,9 @@ class ExcitationMonitor:
         misalignment convergence threshold)."""
         G = self._G  # (3n, ns): row of a_iᵀe_k (k major) in the error state
         var = np.sum((G @ P) * G, axis=1).reshape(3, -1)
-        rms = np.sqrt(np.maximum(np.mean(var, axis=1), 0.0)) / ARCSEC
+        rms = (np.sqrt(np.maximum(np.mean(var, axis=1), 0.0)) / ARCSEC).tolist()
         thr = math.sqrt(float(conv_var[self._axis_idx[-1] - 3])) / ARCSEC
-        return {"axis_sigma_arcsec": {c: round(float(v), 4) for c, v in zip("xyz", rms, strict=True)},
+        return {"axis_sigma_arcsec": {c: round(v, 4) for c, v in zip("xyz", rms, strict=True)},
                 "rotate_about": [c for c, v in zip("xyz", rms, strict=True) if v > thr]}
 
     def report(self) -> dict[str, Any] | None:

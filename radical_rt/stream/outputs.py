@@ -24,7 +24,6 @@ from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.stream.telemetry import PacketSpec, build, read_field
 
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
-_MIN, _MAX = np.minimum.reduce, np.maximum.reduce  # ndarray.min/max without their wrappers
 
 
 class StreamOutputs:
@@ -180,7 +179,7 @@ class StreamOutputs:
                 "engine_counters": self._engine_counters(), "rejected": dict(self.rejected),
                 "clock": field("clock"), "temps": dict(self.temps),
                 "latency": field("latency"), "fdi": field("fdi"),
-                "ud": {"d_min": float(_MIN(e.d)), "d_max": float(_MAX(e.d))},
+                "ud": _d_range(e.d),
                 "excitation": e.excitation.report() if e.excitation is not None else None}
 
     def _engine_counters(self) -> dict[str, int]:
@@ -199,6 +198,18 @@ class StreamOutputs:
         out, self._out = self._out, []
         return out
 
+
+
+def _d_range(d: np.ndarray) -> dict[str, float]:
+    """diag's ``ud`` map {d_min, d_max} of the UD diagonal d (ns,): ``float(d.min())`` and
+    ``float(d.max())``, taken on a list (a NumPy reduction costs tens of µs in the hook, its code
+    cold after the compiled release); NumPy's where a NaN or a zero (signed zeros) could make
+    the two differ."""
+    v = d.tolist()
+    lo, hi = min(v), max(v)
+    if lo == 0.0 or hi == 0.0 or math.isnan(sum(v)):
+        lo, hi = float(d.min()), float(d.max())
+    return {"d_min": lo, "d_max": hi}
 
 
 def _now_fields(t: float, q: np.ndarray, omega: np.ndarray) -> dict[str, Any]:
