@@ -73,11 +73,13 @@ class ExcitationMonitor:
         self._axis_block = np.ix_(self._axis_idx, self._axis_idx)  # their rows and columns of P
         self._G = None if triads is None else _axis_rows(layout, *triads)
         npar = layout.n_states - 3  # group averages over the parameter states, as products
-        self._count = np.zeros((len(self._slices), npar))
+        count = np.zeros((len(self._slices), npar))
         for k, (_g, sl) in enumerate(self._slices):
-            self._count[k, sl.start - 3:sl.stop - 3] = 1.0
+            count[k, sl.start - 3:sl.stop - 3] = 1.0
         self._mean = np.zeros((len(self._slices), layout.n_states))
-        self._mean[:, 3:] = self._count / self._count.sum(axis=1, keepdims=True)
+        self._mean[:, 3:] = count / count.sum(axis=1, keepdims=True)
+        #: each group's range in the parameter vector (the convergence test)
+        self._par_ranges = [(sl.start - 3, sl.stop - 3) for _g, sl in self._slices]
         self._axis_groups = [k for k, (g, _) in enumerate(self._slices) if g in ("lam", "du", "dv")]
         self.clear()
 
@@ -124,10 +126,10 @@ class ExcitationMonitor:
         gains = self._mean @ (0.5 * (lv0[:-1] - lv[:-1]))  # (6,) per group, in one product
         joint = 0.5 * (lv0[-1] - lv[-1]) / len(self._axis_idx)
         gains[self._axis_groups] = np.maximum(gains[self._axis_groups], joint)
-        above = (var[3:] > conv_var).astype(float)
-        conv = (self._count @ above) == 0.0
+        above = [v > c for v, c in zip(var[3:].tolist(), conv_var.tolist(), strict=True)]
+        conv = [True not in above[a:b] for a, b in self._par_ranges]  # no state above
         groups, warn = {}, []
-        for (g, _sl), gain, conv_g in zip(self._slices, gains.tolist(), conv.tolist(), strict=True):
+        for (g, _sl), gain, conv_g in zip(self._slices, gains.tolist(), conv, strict=True):
             excited = gain >= self.gain_min
             groups[g] = {"gain": round(gain, 5), "converged": conv_g, "excited": excited}
             if rotating and not conv_g and not excited:
