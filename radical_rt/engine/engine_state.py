@@ -236,9 +236,12 @@ EDITED_KEY = {k: k + "_edited" for k in ("st1", "st2", "parity")}
 
 
 def _as_list(x: Any) -> list:
-    """``np.atleast_1d(x).tolist()``, without the call for a 1-D array (the usual case)."""
+    """``np.atleast_1d(x).tolist()``, without the NumPy call for the usual cases: a 1-D array,
+    a list of floats (a copy)."""
     if type(x) is np.ndarray and x.ndim == 1:
         return x.tolist()
+    if type(x) is list and all(type(v) is float for v in x):
+        return list(x)
     return np.atleast_1d(x).tolist()
 
 
