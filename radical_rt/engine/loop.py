@@ -321,17 +321,15 @@ def _book_tracker(j, epoch, q_meas, n_stars, E, cfg, io, cnt, trk_f, trk_i, trk_
 
 @kernel
 def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
-                 ib, bb, lay, cfg, io, cnt, evo_f, evo_i, g_f, g_i, g_b, g_end, pred, q_end,
+                 ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end,
                  clock_I, clock_F, bfb, bib, bbb, blay, s_t, s_locked, s_sig_t, wake_t, wake_e,
                  s_att, s_last1, s_last2, s_mode, s_flags, s_nis_par, s_nis1, s_nis2, s_lck1,
                  s_lck2, trk_f, trk_i, trk_end, trk_seq0):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
-    to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). The update results of every tracker event
-    go to evo_f (E, 7) (NIS, innovation (3,), σ (3,)) and evo_i (E, 4) (status, edited, updated,
-    consider; updated −1: an invalid sample, only counted in cnt[CNT_INVALID_ST + j]; 0: no
-    update, e.g. the attitude's initialization) for Python's bookkeeping. Returns (reason, next
+    to z. R1, R2: ST1 and nominal ST2 mountings (3, 3). Every tracker event completed is booked
+    in io and cnt (:func:`_book_tracker`) for Python's bookkeeping. Returns (reason, next
     sample, event, stage): R_DONE with event == n_ev when everything is done; R_ON_WINDOW when
     the window hook has work, stage 0 after a close of the gyro part before event e (or before z
     when e == n_ev), 1 after tracker event e itself. g_end ≥ 0: first copy
@@ -359,7 +357,6 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
-    innov, sig = E[_INNOV], E[_SIG]
     bank = bank_on(bib, blay)  # a bank runs (its control bi[BI_ON])
     while e < n_ev:
         epoch = ev_f[e, 0]
@@ -372,12 +369,6 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         j = ev_i[e, 0]
         reason = _tracker_step(j, epoch, ev_f[e, 1:5], ev_i[e, 1], ev_i[e, 2] != 0,
                                R1 if j == 1 else R2, j == 2, E, cfg, io, cnt)
-        evo_i[e, 0], evo_i[e, 1] = cnt[CNT_STATUS], cnt[CNT_EDITED]
-        evo_i[e, 2], evo_i[e, 3] = cnt[CNT_UPDATED], cnt[CNT_CONSIDER]
-        evo_f[e, 0] = io[IO_NIS]
-        for r in range(3):
-            evo_f[e, 1 + r] = innov[r]
-            evo_f[e, 4 + r] = sig[r]
         _book_tracker(j, epoch, ev_f[e, 1:5], ev_i[e, 1], E, cfg, io, cnt, trk_f, trk_i, trk_end,
                       trk_seq0)
         # the bank takes every sample whose update the kernel completed, also one after which

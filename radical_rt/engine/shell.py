@@ -19,6 +19,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.engine import loop as lp
 from radical_rt.engine import loop_layout as FL
 from radical_rt.engine import steps
+from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY
 from radical_rt.engine.events import EV_WINDOW_STATE, engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
@@ -59,7 +60,7 @@ class LoopShell:
             g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
         pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_clock_I,
                                                      self._no_clock_F)
-        ev_f, ev_i, evo_f, evo_i = events.f, events.i, events.out_f, events.out_i
+        ev_f, ev_i = events.f, events.i
         n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         # the kernel appends the valid tracker samples to the FDI's history (room made per call:
         # the window hook may have cleared it)
@@ -84,8 +85,8 @@ class LoopShell:
             b = self._loop_begin()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
-                self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, evo_f, evo_i,
-                g_f, g_i, g_b, g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3],
+                self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, g_f, g_i, g_b,
+                g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3],
                 b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11], b[12],
                 b[13], b[14], trk_f, trk_i, -1 if trk is None else trk.end,
                 0 if trk is None else fdi.trk_seq)
@@ -191,10 +192,10 @@ class LoopShell:
             if c[FL.CNT_CONSIDER_ST + k]:
                 counters[ST_CONSIDER[j]] += c[FL.CNT_CONSIDER_ST + k]
             if c[FL.CNT_EDITED_ST + k]:
-                counters[kind + "_edited"] += c[FL.CNT_EDITED_ST + k]
+                counters[EDITED_KEY[kind]] += c[FL.CNT_EDITED_ST + k]
             used = c[FL.CNT_USED_ST + k]
             if used:
-                counters[kind + "_used"] += used
+                counters[USED_KEY[kind]] += used
                 self.nis_sum[kind] = v[FL.IO_NIS_SUM_ST + k]
             if c[FL.CNT_LOCKED_ST + k]:
                 rec = self.nis_locked[kind]

@@ -181,7 +181,8 @@ class TrackerBuffer:
         """Put :meth:`get_state` columns back (validated by the caller: consecutive numbers,
         ranges, shapes)."""
         m = len(st["seq"])
-        self._f, self._i = np.empty((max(2 * m, 256), 5)), np.empty((max(2 * m, 256), 3), np.int64)
+        cap = max(2 * m, 256)
+        self._f, self._i = np.empty((cap, 5)), np.empty((cap, 3), np.int64)
         self._f[:m, 0], self._f[:m, 1:5] = st["t"], st["q"]
         self._i[:m, 0], self._i[:m, 1], self._i[:m, 2] = st["seq"], st["tracker"], st["n_stars"]
         self.i0, self.end = 0, m

@@ -269,8 +269,7 @@ def release_plan(ss, si, ev_f, gq_t, gq_head, gq_end, wm, acc0, window, defer):
 
 
 class TrackerQueue:
-    """The waiting tracker rows and the shared scalars (module docstring), with the engine's
-    per-event output rows (``out_f`` (cap, 7), ``out_i`` (cap, 4), see run_release)."""
+    """The waiting tracker rows and the shared scalars (module docstring)."""
 
     def __init__(self, capacity: int = 64) -> None:
         self.ss = np.zeros(SS.end)
@@ -282,7 +281,6 @@ class TrackerQueue:
 
     def _alloc(self, cap: int) -> None:
         self.ev_f, self.ev_i = np.zeros((cap, 5)), np.zeros((cap, 4), np.int64)
-        self.out_f, self.out_i = np.zeros((cap, 7)), np.zeros((cap, 4), np.int64)
 
     def clear(self) -> None:
         """A new stream: no waiting rows, no times seen (the late counter is kept)."""
@@ -316,11 +314,11 @@ class EventBlock:
     gives the engine. Iterating (or :meth:`event`) gives the Python oracle's tuples
     ``(j, t_epoch, q_meas (4,) copy, n_stars, valid)``."""
 
-    __slots__ = ("tq", "f", "i", "out_f", "out_i", "start", "stop")
+    __slots__ = ("tq", "f", "i", "start", "stop")
 
     def __init__(self, tq: TrackerQueue, start: int, stop: int) -> None:
         self.tq, self.start, self.stop = tq, start, stop
-        self.f, self.i, self.out_f, self.out_i = tq.ev_f, tq.ev_i, tq.out_f, tq.out_i
+        self.f, self.i = tq.ev_f, tq.ev_i
 
     def __len__(self) -> int:
         return self.stop - self.start
