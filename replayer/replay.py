@@ -222,7 +222,9 @@ def run(args: argparse.Namespace) -> int:
                 waited = time.monotonic() - t_start
                 print(f"radical replay: node {node_token_key(args.vehicle)} alive "
                       f"(waited {waited:.2f} s)", file=sys.stderr)
-            wait_subs = None
+            wait_subs, settle = None, 0.0
+            if node_wait is not None:  # the node is there: give its routes a moment to arrive
+                settle = min(max(t_start + node_wait - time.monotonic(), 0.0), 1.0) or 0.2
             if wait_s:
                 wait_subs = max(t_start + wait_s - time.monotonic(), 0.1)
             try:
@@ -231,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
                     res = replay([s.path for s in sources], args.vehicle, session,
                                  rate=None if args.fast else args.rate, start=args.start,
                                  end=args.end, progress=not args.no_progress,
-                                 wait_subscribers=wait_subs, gap=args.gap, stop_event=stop)
+                                 wait_subscribers=wait_subs, settle=settle, gap=args.gap,
+                                 stop_event=stop)
             except ReplayError as e:
                 if stop.is_set():
                     print("radical replay: interrupted", file=sys.stderr)

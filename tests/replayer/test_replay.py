@@ -172,6 +172,44 @@ def test_fake_bus_order_payloads_keys_and_block(archives):
     assert res["eos_sent"] == 1 and res["not_delivered"] == 0
 
 
+class _LatePub(_FakePub):
+    """A publisher whose matching status reads False ``late`` times, then True (a subscriber's
+    route reaching a new session after the node's token; late=None: never)."""
+
+    def __init__(self, log: list, key: str, late: int | None) -> None:
+        super().__init__(log, key)
+        self.late, self.reads = late, 0
+        pub = self
+
+        class _Status:
+            @property
+            def matching(self) -> bool:
+                pub.reads += 1
+                return pub.late is not None and pub.reads > pub.late
+        self.matching_status = _Status()
+
+
+def test_fake_bus_delivery_counts_the_status_at_put_time(archives):
+    """A put counts as not delivered only if the publisher has no matching subscriber when it is
+    made: a status that turns True before the first put (read at put time, not only from the
+    listener's thread) loses nothing; ``settle`` waits for it; a publisher never matched counts
+    every message."""
+    def session(lates: dict[str, int | None]) -> FakeSession:
+        s = FakeSession()
+        s.declare_publisher = lambda key, **kw: _LatePub(
+            s.eos_log if key.endswith("/eos") else s.log, key,
+            lates.get(key.rsplit("/", 1)[-1], 0))
+        return s
+
+    res = replay([archives["a"]], VEH, session({"st2": 1, "temp": 1}), rate=None, end=2.0)
+    assert res["not_delivered"] == 0 and res["messages"] == 62, res
+    res = replay([archives["a"]], VEH, session({"st2": 5}), rate=None, end=2.0, settle=1.0)
+    assert res["not_delivered"] == 0, res
+    res = replay([archives["a"]], VEH, session({"temp": None}), rate=None, end=2.0, settle=0.05)
+    assert res["unmatched"]["/temp"] == res["counts"]["/temp"] == res["not_delivered"] == 2, res
+    assert sum(res["unmatched"].values()) == 2
+
+
 def test_fake_bus_paced_sequence_and_window(archives):
     """Two archives at 40x: each message is published at base + (t - t_first)/rate, the second
     archive starting where the first ended; --start/--end window per archive."""
