@@ -36,6 +36,9 @@ import numba
 from numba import njit
 
 _POLICY = dict(cache=True, fastmath=False, nogil=False, error_model="numpy")
+#: the policy as ``jit_options`` of a ``numba.extending.overload`` (compiled into its callers,
+#: which are cached)
+JIT_POLICY = {k: v for k, v in _POLICY.items() if k != "cache"}
 _PACKAGE = Path(__file__).resolve().parent
 _INSTALLED = _PACKAGE  # (_PACKAGE itself is replaced by the cache tests)
 _checked: set[Path] = set()
@@ -55,7 +58,7 @@ def _kernel_sources(d: Path) -> list[Path]:
     for p in files:
         by_stem.setdefault(p.stem, []).append(p)
     todo = [p for p, t in texts.items()
-            if b"@kernel" in t or b"@inline_kernel" in t or b"njit(" in t]
+            if b"@kernel" in t or b"@inline_kernel" in t or b"njit(" in t or b"@overload(" in t]
     keep: set[Path] = set()
     while todo:
         path = todo.pop()
