@@ -96,6 +96,7 @@ from radical_rt.engine.steps import (
 )
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_sample_packed
 from radical_rt.fdi.fdi_bank_propagate import append_rows
+from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate
@@ -349,7 +350,13 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`); s_nis1, s_nis2, s_lck1,
     s_lck2: the trackers' NIS sums (all used updates; those while locked). Every tracker sample
     completed is booked by :func:`_book_tracker` (trk_f, trk_i, trk_end, trk_seq0: the FDI's
-    tracker history there)."""
+    tracker history there). The array arguments are used as views that own no memory
+    (:func:`radical_rt.kernels.flat_views.borrow`: no reference counting in the inlined steps)."""
+    t, dt, dth, status, bridged = borrow(t), borrow(dt), borrow(dth), borrow(status), borrow(bridged)
+    var_extra, ev_f, ev_i, R1, R2 = borrow(var_extra), borrow(ev_f), borrow(ev_i), borrow(R1), borrow(R2)
+    cfg, io, cnt, g_f, g_i, g_b = borrow(cfg), borrow(io), borrow(cnt), borrow(g_f), borrow(g_i), borrow(g_b)
+    pred, clock_I, clock_F, trk_f, trk_i = (borrow(pred), borrow(clock_I), borrow(clock_F),
+                                            borrow(trk_f), borrow(trk_i))
     load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
                  s_mode, s_flags, s_nis_par)
     io[IO_NIS_SUM_ST], io[IO_NIS_SUM_ST + 1] = s_nis1, s_nis2

@@ -219,7 +219,7 @@ def fold(E, io, cnt):
         numeric_fault(E, io, cnt, NUMERIC_GEOMETRY)
 
 
-@kernel
+@inline_kernel
 def close_window(E, cfg, io, cnt):
     """Close the time-update window on its accumulators (nothing when it is empty): κ scaling,
     P ← ΦPΦᵀ + Q_aa, parameter noise (radical_rt.kernels.timeupdate); then the lock latch and

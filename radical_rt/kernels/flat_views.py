@@ -70,3 +70,21 @@ def _view3_compiled(buf, lay, i):
     def impl(buf, lay, i):
         return numba.carray(_at(buf, lay[i, 0]), (lay[i, 1], lay[i, 2], lay[i, 3]))
     return impl
+
+
+def borrow(a):
+    """``a`` itself (Python callers, NUMBA_DISABLE_JIT); in compiled code a view of the
+    C-contiguous array ``a`` that owns no memory (see the module docstring), so that passing
+    it on to inlined helpers costs no reference counting. Valid while ``a`` is: a kernel's own
+    argument, for the call."""
+    return a
+
+
+@overload(borrow, inline="always", jit_options=JIT_POLICY)
+def _borrow_compiled(a):
+    if not isinstance(a, types.Array) or a.layout != "C":
+        return lambda a: a  # (a strided array is passed on as it is)
+
+    def impl(a):
+        return numba.carray(_at(a, 0), a.shape)
+    return impl
