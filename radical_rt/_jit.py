@@ -3,7 +3,9 @@
 Every compiled kernel is declared with :func:`kernel`: ``cache=True`` (compiled once, loaded from
 ``__pycache__`` afterwards), ``fastmath=False`` (bit-reproducible), ``nogil=False``,
 ``error_model='numpy'`` (no Python exceptions for division by zero inside kernels; kernels return
-status codes instead).
+status codes instead). The one other form is :mod:`radical_rt.kernels.flat_views`: functions with
+a NumPy body for Python and a compiled body (``numba.extending.overload`` with
+:data:`JIT_POLICY`) inlined into the kernels that call them.
 
 ``nogil=False``: the kernels run for microseconds, and releasing the GIL around each of them
 (about 20 calls per input message) handed it to any other Python thread that wanted it, and the
