@@ -177,8 +177,8 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
     publisher has a matching subscriber (ReplayError if not). ``settle`` (used when
     ``wait_subscribers`` is None): the same wait, at most that many seconds, without the error —
     a node known to be alive has subscribers whose routes may reach a new session a moment after
-    its token; publishers still unmatched after it count their puts as not delivered. ``gap``: wall seconds between two
-    archives (paced mode). ``stop_event``: set it to stop early. ``freeze_gc`` (paced mode): one
+    its token; publishers still unmatched after it count their puts as not delivered.
+    ``gap``: wall seconds between two archives (paced mode). ``stop_event``: set it to stop early. ``freeze_gc`` (paced mode): one
     garbage collection before the first message, then ``gc.freeze()`` until the end, so that no
     full collection of a large heap (tens of ms) delays a message.
 
@@ -238,14 +238,11 @@ def replay(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], veh
                 readers.append(ArchiveReader(src.path))
             streams.append(_ReadAhead(readers[-1].iter_raw(src.topics, src.start_ns, src.end_ns)))
         pull_cost = max(s.cost for s in streams)  # the first pull loaded a chunk: a fair bound
-        if wait_subscribers is not None:
-            _wait_matching(pubs, keys, wait_subscribers, stop_event)
-            # the polled status is matched now; the listener's callback (another thread) may
+        if wait_subscribers is not None or settle > 0:
+            strict = wait_subscribers is not None
+            _wait_matching(pubs, keys, wait_subscribers if strict else settle, stop_event, strict)
+            # the polled status is current now; the listener's callback (another thread) may
             # come later, and a put before it would be counted as undelivered
-            for t, p in pubs.items():
-                matched[t] = bool(p.matching_status.matching)
-        elif settle > 0:
-            _wait_matching(pubs, keys, settle, stop_event, strict=False)
             for t, p in pubs.items():
                 matched[t] = bool(p.matching_status.matching)
         if rate is not None and freeze_gc:

@@ -69,6 +69,7 @@ from replayer.sessions import (
 )
 
 DEFAULT_WAIT_S = 10.0
+SETTLE_S = 1.0  # longest wait for the subscribers of a node already seen (then publish anyway)
 
 
 # -------------------------------------------------------------------------------------- CLI
@@ -222,9 +223,8 @@ def run(args: argparse.Namespace) -> int:
                 waited = time.monotonic() - t_start
                 print(f"radical replay: node {node_token_key(args.vehicle)} alive "
                       f"(waited {waited:.2f} s)", file=sys.stderr)
-            wait_subs, settle = None, 0.0
-            if node_wait is not None:  # the node is there: give its routes a moment to arrive
-                settle = min(max(t_start + node_wait - time.monotonic(), 0.0), 1.0) or 0.2
+            # the node is there: give its subscriber routes a moment to arrive
+            wait_subs, settle = None, (SETTLE_S if node_wait is not None else 0.0)
             if wait_s:
                 wait_subs = max(t_start + wait_s - time.monotonic(), 0.1)
             try:
