@@ -29,7 +29,6 @@ import numpy as np
 from radical_rt._jit import kernel
 from radical_rt.clock.clock_kernels import clock_push_rows
 from radical_rt.contract.conventions import SIRU_TT_WRAP
-from radical_rt.kernels.flat_views import borrow
 from radical_rt.stream.packets import MAX_DTHETA_RAD, MAX_SIRU_BATCH
 from radical_rt.stream.stream_layout import SS_WINDOW
 
@@ -261,13 +260,7 @@ def siru_intake(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap, ss, i_la
     """A whole plain siru message in one call: :func:`parse_siru` into the column buffers, then
     :func:`siru_accept`. Returns (WIRE_*, k, rows appended): WIRE_FALLBACK — not the plain
     layout (nothing changed); WIRE_GROW — the column buffers need k rows; WIRE_DUPLICATE /
-    WIRE_BACKWARDS / WIRE_JUMP — refused by the time check (nothing changed). The arrays but
-    buf are used as views that own no memory (radical_rt.kernels.flat_views.borrow)."""
-    t_bus, tt, dtheta, status, ss, I, F = (borrow(t_bus), borrow(tt), borrow(dtheta),
-                                           borrow(status), borrow(ss), borrow(I), borrow(F))
-    chunk, OF, OI, q_t, q_dt, q_dth = (borrow(chunk), borrow(OF), borrow(OI), borrow(q_t),
-                                       borrow(q_dt), borrow(q_dth))
-    q_st, q_br, q_ve, tags = borrow(q_st), borrow(q_br), borrow(q_ve), borrow(tags)
+    WIRE_BACKWARDS / WIRE_JUMP — refused by the time check (nothing changed)."""
     k = parse_siru(buf, n_gyro, t_bus, tt, dtheta, status, max_k, tt_wrap)
     if k == FALLBACK:
         return WIRE_FALLBACK, 0, 0
