@@ -1,7 +1,9 @@
 """Engine state arrays, health bookkeeping, snapshots and checkpoints (no filter math here).
 
 :class:`EngineState` owns every array the engine works on (allocated once), the counters, flags and
-mode, and turns them into output snapshots (SI) and msgpack-able checkpoints.
+mode, and turns them into output snapshots (SI) and msgpack-able checkpoints. The scalar state
+(time, mode, flags, attitude valid, lock latch) lives in the ``io`` and ``cnt`` arrays of the
+compiled calls (:mod:`radical_rt.engine.loop_layout`); the attributes are views of them.
 """
 
 from __future__ import annotations
@@ -16,8 +18,42 @@ from radical_rt.contract.flags import Flag
 from radical_rt.contract.geometry import Geometry
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
 from radical_rt.engine.engine_layout import SLOTS, slot_problems
+from radical_rt.engine.loop_layout import (
+    CNT,
+    CNT_FLAGS,
+    CNT_MASKED,
+    IO,
+    IO_ATT_VALID,
+    IO_LOCKED_SINCE,
+    IO_MODE,
+    IO_T,
+)
+from radical_rt.engine.steps import MODE_CONVERGED, MODE_CONVERGING, MODE_DEGRADED, MODE_INIT
 from radical_rt.kernels import ud
 from radical_rt.kernels.parametrization import contract_from_internal, contract_sigma_ud
+
+#: the mode names and their codes in io (IO_MODE)
+MODE_CODE = {"init": MODE_INIT, "converging": MODE_CONVERGING, "converged": MODE_CONVERGED,
+             "degraded": MODE_DEGRADED}
+MODE_NAME = {v: k for k, v in MODE_CODE.items()}
+
+
+def _drained(name: str, doc: str) -> property:
+    """A bookkeeping attribute stored as ``_b_<name>``, read and replaced after
+    :meth:`EngineState._drain`."""
+    attr = "_b_" + name
+
+    def get(self):
+        if self._undrained:
+            self._drain()
+        return getattr(self, attr)
+
+    def put(self, value) -> None:
+        if self._undrained:
+            self._drain()
+        setattr(self, attr, value)
+
+    return property(get, put, doc=doc)
 
 
 class EngineState:
@@ -67,6 +103,10 @@ class EngineState:
         self.scale_mask = self.gyro_mask.copy()  # λ, μ, du, dv (the gyro calibration but b)
         self.scale_mask[layout["b"]] = False
         self.excluded = np.zeros(n, dtype=np.bool_)
+        # the scalar state: kept in the arrays of the compiled calls (radical_rt.engine.
+        # loop_layout); t, mode, flags, att_valid, locked_since are views of them
+        self._io, self._cnt = np.zeros(IO.end), np.zeros(CNT.end, np.int64)
+        self._cnt[CNT_MASKED] = -1
         self.flags = int(Flag.NOT_CONVERGED)
         self.mode = "init"
         self.t = -math.inf
@@ -74,6 +114,10 @@ class EngineState:
         self.masked = False
         self.counters: dict[str, int] = defaultdict(int)
         self.nis_sum: dict[str, float] = defaultdict(float)
+        #: per measurement kind, [updates used, their NIS sum] while the time line was locked
+        #: (σ_t ≤ timing_consider_s): the NIS statistics of the calibrating updates (not saved in
+        #: checkpoints)
+        self.nis_locked: dict[str, list] = {k: [0, 0.0] for k in ("st1", "st2", "parity")}
         self.diag_last: dict[str, tuple] = {}
         self.last_valid_st: dict[int, float] = {}
         self.last_numeric = ""
@@ -81,6 +125,74 @@ class EngineState:
         self.q_params = np.zeros(npar)  # parameter process noise [unit²/s], set from the table
         self.st_sigma = np.zeros(3)  # tracker noise 1σ at st_ref_stars [rad], set from the table
         self.locked_since = math.inf  # start of the current locked run of the time line [s]
+        self._sum_pending = None  # the FDI statistic of a parity sum queued since the last hook
+
+    # ---------------------------------------------------------------- scalar state
+    # Views of io and cnt, where the compiled calls keep them: always current.
+    @property
+    def t(self) -> float:
+        """Engine time: the newest event given to the filter [s] (−inf: none yet)."""
+        return self._io.item(IO_T)
+
+    @t.setter
+    def t(self, v: float) -> None:
+        self._io[IO_T] = v
+
+    @property
+    def locked_since(self) -> float:
+        """Start of the current locked run of the time line [s] (inf: not locked)."""
+        return self._io.item(IO_LOCKED_SINCE)
+
+    @locked_since.setter
+    def locked_since(self, v: float) -> None:
+        self._io[IO_LOCKED_SINCE] = v
+
+    @property
+    def att_valid(self) -> bool:
+        """Whether the attitude is initialized."""
+        return self._io.item(IO_ATT_VALID) != 0.0
+
+    @att_valid.setter
+    def att_valid(self, v: bool) -> None:
+        self._io[IO_ATT_VALID] = 1.0 if v else 0.0
+
+    @property
+    def mode(self) -> str:
+        """init | converging | converged | degraded."""
+        return MODE_NAME[self._io.item(IO_MODE)]
+
+    @mode.setter
+    def mode(self, v: str) -> None:
+        self._io[IO_MODE] = MODE_CODE[v]
+
+    @property
+    def flags(self) -> int:
+        """The engine's flags (CONTRACT §4 bits)."""
+        return self._cnt.item(CNT_FLAGS)
+
+    @flags.setter
+    def flags(self, v: int) -> None:
+        self._cnt[CNT_FLAGS] = int(v)
+
+    # The bookkeeping maps: Python objects, brought up to date with what the compiled calls
+    # counted since Python last looked (the shell's _drain) whenever they are read or replaced.
+    _undrained = False  # the compiled calls have counted something Python has not taken yet
+
+    def _drain(self) -> None:
+        """Take what the compiled calls counted into the bookkeeping (the shell's)."""
+        self._undrained = False
+
+    counters = _drained("counters", "event counters {name: count}")
+    nis_sum = _drained("nis_sum", "sum of the NIS of the used updates per kind (st1, st2, "
+                                  "parity)")
+    nis_locked = _drained("nis_locked", "per kind, [updates used, their NIS sum] while the time "
+                                        "line was locked")
+    diag_last = _drained("diag_last", "per kind, the last update's (innovation, 1σ, NIS)")
+    last_valid_st = _drained("last_valid_st", "the last valid epoch [s] per tracker 1, 2 seen")
+    masked = _drained("masked", "whether the last propagation masked a gyro")
+    last_numeric = _drained("last_numeric", "the text of the last numeric fault ('' : none)")
+    _sum_pending = _drained("sum_pending", "the FDI statistic of the parity sum queued since the "
+                                           "last window hook (None: none; (): not computed)")
 
     # ---------------------------------------------------------------- packed storage
     # the arrays the compiled release reads or writes: radical_rt.engine.engine_layout.SLOTS

@@ -61,10 +61,6 @@ class Engine(LoopShell, EngineState):
         super().__init__(StateLayout(geometry.n_gyro, latency=True), geometry)
         self.table = table or ParamTable(n_gyro=geometry.n_gyro)
         self._phi_col, self._lat_col = self.layout["phi2"].start, self.layout["lat"].start
-        #: per measurement kind, [updates used, their NIS sum] while the time line was locked
-        #: (σ_t ≤ timing_consider_s): the NIS statistics of the calibrating updates (not saved in
-        #: checkpoints)
-        self.nis_locked: dict[str, list] = {k: [0, 0.0] for k in ("st1", "st2", "parity")}
         self.params_changed()
         self._pack()
         self.cold_start()
@@ -216,15 +212,15 @@ class Engine(LoopShell, EngineState):
         sig = float(self.hooks.timing_sigma(self.t))
         return sig if math.isfinite(sig) and sig > 0.0 else 0.0
 
-    #: whether the time line was locked (σ_t ≤ timing_consider_s: the updates calibrate) at the
-    #: start of the last compiled call (the σ does not change during a release)
+    #: whether the time line was locked (σ_t ≤ timing_consider_s: the updates calibrate) during
+    #: the Python oracle's release (tests/oracles; the compiled calls test it themselves)
     locked = False
 
     fdi = None  # (class defaults for the start-up, before __init__ sets them)
     excitation = None
 
     def _update_done(self, kind: str, innov, sig, nis: float, edited: bool) -> bool:
-        """Diagnostics and counters of one tracker update the kernel ran."""
+        """Diagnostics and counters of one tracker update (the Python oracle's, tests/oracles)."""
         self.diag_last[kind] = (innov, sig, nis)
         if edited:
             self.counters[EDITED_KEY[kind]] += 1
@@ -244,6 +240,7 @@ class Engine(LoopShell, EngineState):
         n_saved = self.N.copy()
         self._refresh()
         self.N[...] = n_saved
+        self._load_bookkeeping()  # the restored epochs and NIS sums, for the compiled calls
 
     def _refresh(self) -> None:
         status = refresh_axes(self.xp, self.geo.W, self.geo.U, self.geo.V, self.N.copy(), self.A,

@@ -20,10 +20,10 @@ step for Python (commands, checks, the end of a stream) on the same state.
 
 ``E``: tuple of the engine's arrays (:func:`radical_rt.engine.engine_layout.unpack` of the
 engine's three flat buffers, one argument each instead of one per array; all updated in place).
-``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), the scalar state the
-kernel loads and hands back with the outputs of a tracker update (float64), and flags, counters
-and status codes (int64), declared in :mod:`radical_rt.engine.loop_layout` (``CFG_*``,
-``IO_*``, ``CNT_*``; docs/engine.md lists them).
+``cfg``, ``io``, ``cnt``: the engine's scalar configuration (float64), its scalar state, kept
+there between calls, with the outputs of a tracker update (float64), and its flags, counters and
+status codes (int64; the counters accumulate until Python takes them), declared in
+:mod:`radical_rt.engine.loop_layout` (``CFG_*``, ``IO_*``, ``CNT_*``; docs/engine.md lists them).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_layout import E_INDEX, unpack
-from radical_rt.engine.events import load_scalars
+from radical_rt.engine.events import begin_call
 from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.engine.loop_layout import (
     CFG_ARW_VAR,
@@ -323,9 +323,8 @@ def _book_tracker(j, epoch, q_meas, n_stars, E, cfg, io, cnt, trk_f, trk_i, trk_
 @kernel
 def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F, bfb, bib, bbb, blay, s_t, s_locked, s_sig_t, wake_t, wake_e,
-                 s_att, s_last1, s_last2, s_mode, s_flags, s_nis_par, s_nis1, s_nis2, s_lck1,
-                 s_lck2, trk_f, trk_i, trk_end, trk_seq0):
+                 clock_I, clock_F, bfb, bib, bbb, blay, sig_t, wake_t, wake_e, trk_f, trk_i,
+                 trk_end, trk_seq0):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -347,8 +346,8 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at that sample.
-    s_t .. s_nis_par: the engine's scalar state (:func:`load_scalars`); s_nis1, s_nis2, s_lck1,
-    s_lck2: the trackers' NIS sums (all used updates; those while locked). Every tracker sample
+    sig_t: σ of the time line [s]; wake_t, wake_e: see the module docstring (:func:`begin_call`;
+    the engine's other scalar state stays in io and cnt between calls). Every tracker sample
     completed is booked by :func:`_book_tracker` (trk_f, trk_i, trk_end, trk_seq0: the FDI's
     tracker history there). The array arguments are used as views that own no memory
     (:func:`radical_rt.kernels.flat_views.borrow`: no reference counting in the inlined steps)."""
@@ -357,10 +356,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     cfg, io, cnt, g_f, g_i, g_b = borrow(cfg), borrow(io), borrow(cnt), borrow(g_f), borrow(g_i), borrow(g_b)
     pred, clock_I, clock_F, trk_f, trk_i = (borrow(pred), borrow(clock_I), borrow(clock_F),
                                             borrow(trk_f), borrow(trk_i))
-    load_scalars(io, cnt, s_t, s_locked, s_sig_t, wake_t, wake_e, s_att, s_last1, s_last2,
-                 s_mode, s_flags, s_nis_par)
-    io[IO_NIS_SUM_ST], io[IO_NIS_SUM_ST + 1] = s_nis1, s_nis2
-    io[IO_NIS_LOCKED_ST], io[IO_NIS_LOCKED_ST + 1] = s_lck1, s_lck2
+    begin_call(io, cnt, sig_t, wake_t, wake_e)
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)

@@ -2,8 +2,11 @@
 run_release`), declared once with :class:`radical_rt.contract.layout.Fields`.
 
 ``cfg`` (float64): the engine's scalar configuration, rebuilt after every parameter change
-(``LoopShell._loop_config``); ``io`` (float64): the scalar state the kernel loads, updates and
-hands back, and the outputs of a tracker update; ``cnt`` (int64): flags, counters and status codes.
+(``LoopShell._loop_config``); ``io`` (float64): the engine's scalar state (kept here between
+calls: the engine's ``t``, ``mode``, ``att_valid``, ``locked_since`` are views of it), the
+collaborators' inputs of a call and the outputs of a tracker update; ``cnt`` (int64): the flags
+(``Engine.flags``), then counters and status codes that accumulate until Python takes them
+(``LoopShell._drain``: CNT_USED..CNT_END−1 back to 0, CNT_MASKED to −1).
 ``IO_LAST_ST + j`` is the last valid epoch of tracker j = 1, 2; ``X_ST + j − 1`` the per-tracker
 fields of size 2.
 """
@@ -65,6 +68,8 @@ IO_NIS_LOCKED_ST = IO.add("nis_locked_st", 2, doc="per tracker: the same sum ove
 IO_DIAG_ST1 = IO.add("diag_st1", 7, unit="-, rad, rad",
                      doc="ST1's last update: NIS, innovation (3,), its 1 sigma (3,) (out)")
 IO_DIAG_ST2 = IO.add("diag_st2", 7, unit="-, rad, rad", doc="the same for ST2 (out)")
+IO_NIS_LOCKED_PAR = IO.add("nis_locked_par", doc="sum of the NIS of the parity updates used "
+                                                 "while the time line was locked (in/out)")
 IO.freeze()
 IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
 
@@ -102,6 +107,8 @@ CNT_DIAG_ST = CNT.add("diag_st", 2, doc="per tracker: 1 when IO_DIAG_ST<j> was w
 CNT_FIRST_UPDATED = CNT.add("first_updated", doc="tracker of the call's first update (0: none)")
 CNT_FIRST_VALID = CNT.add("first_valid", doc="tracker of the call's first valid sample (0: none)")
 CNT_TRK_ADDED = CNT.add("trk_added", doc="valid tracker samples appended to the FDI history (+=)")
+CNT_LOCKED_PAR = CNT.add("locked_par", doc="parity updates used while the time line was locked "
+                                           "(+=)")
 CNT.freeze()
 CNT_END = CNT.end  # the per-call counters are CNT_USED..CNT_END−1
 CNT_INVALID_ST = CNT_INVALID_ST1 - 1  # CNT_INVALID_ST + j: tracker j

@@ -2,9 +2,11 @@
 
 :class:`LoopShell` is the part of :class:`radical_rt.engine.filter.Engine` that hands one whole
 release of the stream processor to :func:`radical_rt.engine.loop.run_release`, runs the
-window hook where the kernel stops for it, and keeps the bookkeeping the kernel reports: the
-tracker samples it completed (FDI history, diagnostics, counters), the counters of the call, and
-the scalar state it loads and hands back (:meth:`_loop_begin`, :meth:`_loop_end`).
+window hook where the kernel stops for it, and takes the bookkeeping the kernel counts: the
+tracker samples it completed (diagnostics, counters, NIS sums), the parity updates and sums, the
+numeric faults (:meth:`_drain`, when Python reads them; the FDI's tracker history after every
+call, :meth:`_call_done`). The scalar state stays in the kernel's io and cnt arrays between calls
+(the engine's attributes are views of them, :mod:`radical_rt.engine.engine_state`).
 :meth:`_event` runs one of the engine's compiled steps for Python (commands, checks, the end of a
 stream) on the same state. No filter step is written here.
 """
@@ -18,7 +20,6 @@ import numpy as np
 from radical_rt.contract.flags import Flag
 from radical_rt.engine import loop as lp
 from radical_rt.engine import loop_layout as FL
-from radical_rt.engine import steps
 from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY
 from radical_rt.engine.events import EV_WINDOW_STATE, engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
@@ -27,10 +28,6 @@ from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
 ST_KIND = {1: "st1", 2: "st2"}
 ST_CONSIDER = {1: "st1_consider", 2: "st2_consider"}  # counter of considered updates
 ST_EDITED_BIT = {1: int(Flag.ST1_EDITED), 2: int(Flag.ST2_EDITED)}
-MODE_CODE = {"init": steps.MODE_INIT, "converging": steps.MODE_CONVERGING,
-             "converged": steps.MODE_CONVERGED, "degraded": steps.MODE_DEGRADED}  # IO_MODE
-_MODE_NAME = {v: k for k, v in MODE_CODE.items()}
-_NO_SUM = None  # no parity sum waiting for the window hook
 
 
 def numeric_reason(code: int) -> str:
@@ -82,20 +79,20 @@ class LoopShell:
                 g_f, g_i, g_b = hist.blocks()[:3]
             if trk is not None:
                 trk_f, trk_i = trk.reserve(n_ev - e)
-            b = self._loop_begin()
+            sig_t, wake_t, wake_e = self._call_inputs()
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, g_f, g_i, g_b,
-                g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3],
-                b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11], b[12],
-                b[13], b[14], trk_f, trk_i, -1 if trk is None else trk.end,
+                g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3], sig_t, wake_t,
+                wake_e, trk_f, trk_i, -1 if trk is None else trk.end,
                 0 if trk is None else fdi.trk_seq)
+            self._undrained = True  # the counters of the call: taken when Python reads them
             if bank is not None:
                 bank.kernel_done()
             if g_end >= 0:
                 gbuf.end += z - a
                 g_end = -1
-            self._loop_end()  # (with the bookkeeping of the tracker events it completed)
+            self._call_done()
             e = e_stop
             if stage == 1:  # the hook after tracker event e
                 t_hook = float(ev_f[e, 0])
@@ -114,81 +111,90 @@ class LoopShell:
     _no_trk_f, _no_trk_i = np.zeros((0, 5)), np.zeros((0, 3), np.int64)
 
     # ---------------------------------------------------------------- kernel state
-    def _loop_begin(self) -> tuple:
-        """The scalar state the kernel loads into its io arrays at the start of a call (the last
-        eleven arguments of :func:`loop.run_release`; :meth:`_loop_end` takes it back): t,
-        locked_since, σ of the time line, wake_t, wake_e, attitude valid, last valid epochs of
-        ST1 and ST2, mode code, flags, sum of the parity NIS. It also sets the configuration
-        that follows the collaborators: IO_WAKE_EVERY (the window hook after every tracker sample,
-        for a bank the kernel cannot run), CFG_FDI_ON and CFG_HOOK_SUM."""
-        last, fdi = self.last_valid_st, self.fdi
-        wake_t, wake_e = self.hooks.wake()  # the hooks' (the stream's packets and flags)
+    def _call_inputs(self) -> tuple[float, float, float]:
+        """The collaborators' inputs of a compiled call: σ of the time line [s] and the wake
+        times wake_t, wake_e [s] (the hooks': the stream's packets and flags; the FDI's). Also
+        sets the configuration that follows the collaborators: IO_WAKE_EVERY (the window hook
+        after every tracker sample, for a bank the kernel cannot run), CFG_FDI_ON and
+        CFG_HOOK_SUM. The rest of the scalar state stays in io and cnt between calls."""
+        fdi = self.fdi
+        wake_t, wake_e = self.hooks.wake()
+        io, cfg = self._io, self._cfg
         if fdi is not None:
             wake_e = min(wake_e, fdi.wake_time())
-        self._io[FL.IO_WAKE_EVERY] = 1.0 if fdi is not None and fdi.wake_on_tracker() else 0.0
-        cfg = self._cfg
-        cfg[FL.CFG_FDI_ON] = 1.0 if fdi is not None and fdi.enabled(self) else 0.0
-        cfg[FL.CFG_HOOK_SUM] = 1.0 if fdi is not None or self.excitation is not None else 0.0
-        sig_t = self.timing_sigma()
-        self.locked = sig_t <= self.si.timing_consider_s  # for the NIS statistics of this call
-        nis, locked = self.nis_sum, self.nis_locked
-        return (self.t, self.locked_since, sig_t, wake_t, wake_e,
-                1.0 if self.att_valid else 0.0, last.get(1, -math.inf), last.get(2, -math.inf),
-                MODE_CODE[self.mode], int(self.flags), nis.get("parity", 0.0), nis.get("st1", 0.0),
-                nis.get("st2", 0.0), locked["st1"][1], locked["st2"][1])
+            io[FL.IO_WAKE_EVERY] = 1.0 if fdi.wake_on_tracker() else 0.0
+            cfg[FL.CFG_FDI_ON] = 1.0 if fdi.enabled(self) else 0.0
+            cfg[FL.CFG_HOOK_SUM] = 1.0
+        else:
+            io[FL.IO_WAKE_EVERY] = cfg[FL.CFG_FDI_ON] = 0.0
+            cfg[FL.CFG_HOOK_SUM] = 0.0 if self.excitation is None else 1.0
+        return self.timing_sigma(), wake_t, wake_e
 
-    def _loop_end(self) -> None:
-        """The scalar state and the counters of a call back from the io arrays."""
-        v, c = self._io.tolist(), self._cnt.tolist()  # (plain floats and ints: one read each)
-        self.t, self.locked_since = v[FL.IO_T], v[FL.IO_LOCKED_SINCE]
-        self.att_valid = v[FL.IO_ATT_VALID] != 0.0
-        self.mode = _MODE_NAME[v[FL.IO_MODE]]
-        self.flags = c[FL.CNT_FLAGS]
-        counters = self.counters
+    def _call_done(self) -> None:
+        """After a compiled call, what cannot wait until Python reads the bookkeeping: the FDI's
+        tracker history grows by the rows the kernel appended, and an attitude reset clears the
+        excitation monitor."""
+        cnt = self._cnt
+        added = cnt.item(FL.CNT_TRK_ADDED)
+        if added:
+            cnt[FL.CNT_TRK_ADDED] = 0
+            self.fdi.trk.end += added
+            self.fdi.trk_seq += added
+        if cnt.item(FL.CNT_RESETS):
+            cnt[FL.CNT_RESETS] = 0
+            if self.excitation is not None:
+                self.excitation.clear()
+
+    def _drain(self) -> None:
+        """Take what the compiled calls counted since Python last looked (cnt from CNT_USED on,
+        then back to 0, CNT_MASKED to −1) into the bookkeeping: counters, the parity and tracker
+        diagnostics and NIS sums, the last valid tracker epochs, the masked flag, the last
+        numeric fault and the FDI statistic of a queued parity sum. New keys of the maps are
+        added in the order of the samples, as sample-by-sample bookkeeping would."""
+        self._undrained = False
+        io, cnt = self._io, self._cnt
+        v, c = io.tolist(), cnt.tolist()  # (plain floats and ints: one read each)
+        cnt[FL.CNT_USED:FL.CNT_END] = 0
+        cnt[FL.CNT_MASKED] = -1
+        counters = self._b_counters
         for name, i in self._COUNTED:
             if c[i]:
                 counters[name] += c[i]
         if c[FL.CNT_MASKED] >= 0:
-            self.masked = c[FL.CNT_MASKED] != 0
+            self._b_masked = c[FL.CNT_MASKED] != 0
         if c[FL.CNT_GAPS]:
             counters["warm_starts"] += c[FL.CNT_GAPS]
-        if c[FL.CNT_RESETS] and self.excitation is not None:
-            self.excitation.clear()
         if c[FL.CNT_NUMERIC]:
-            self.last_numeric = numeric_reason(c[FL.CNT_NUMERIC_CODE])
+            self._b_last_numeric = numeric_reason(c[FL.CNT_NUMERIC_CODE])
         if c[FL.CNT_PAR_USED] or c[FL.CNT_PAR_EDITED]:
-            self._parity_done(c[FL.CNT_PAR_USED], v[FL.IO_NIS_SUM_PAR])
+            self._parity_done(v, c)
         if c[FL.CNT_PAR_SUMS]:
-            self._sum_pending = ((v[FL.IO_PAR_NU], v[FL.IO_PAR_RHO], v[FL.IO_PAR_T0],
-                                  v[FL.IO_PAR_Z]) if c[FL.CNT_PAR_STAT] else ())
+            self._b_sum_pending = ((v[FL.IO_PAR_NU], v[FL.IO_PAR_RHO], v[FL.IO_PAR_T0],
+                                    v[FL.IO_PAR_Z]) if c[FL.CNT_PAR_STAT] else ())
         if c[FL.CNT_FIRST_VALID]:
             self._trackers_done(v, c)
 
     def _trackers_done(self, v: list, c: list) -> None:
-        """The bookkeeping of the tracker samples a call completed (:func:`loop._book_tracker`;
-        v, c: the io and cnt arrays as lists): last valid epochs, the FDI history's new rows,
-        and per tracker kind the last diagnostics, the counters and NIS sums. New keys of these
-        maps are added in the order of the samples, as sample-by-sample bookkeeping would."""
+        """The bookkeeping of the tracker samples the kernel completed (:func:`loop._book_tracker`;
+        v, c: the io and cnt arrays as lists): last valid epochs, and per tracker kind the last
+        diagnostics, the counters and NIS sums. New keys of these maps are added in the order
+        of the samples, as sample-by-sample bookkeeping would."""
         first = c[FL.CNT_FIRST_VALID]
-        last = self.last_valid_st
+        last = self._b_last_valid_st
         for j in (first, 3 - first):
             t_last = v[FL.IO_LAST_ST + j]
             if t_last != last.get(j, -math.inf):
                 last[j] = t_last
-        added = c[FL.CNT_TRK_ADDED]
-        if added and self.fdi is not None:
-            self.fdi.trk.end += added
-            self.fdi.trk_seq += added
         first = c[FL.CNT_FIRST_UPDATED]
         if not first:
             return
-        counters = self.counters
+        counters = self._b_counters
         for j in (first, 3 - first):
             k = j - 1
             if not c[FL.CNT_DIAG_ST + k]:
                 continue
             kind, d = ST_KIND[j], (FL.IO_DIAG_ST1 if j == 1 else FL.IO_DIAG_ST2)
-            self.diag_last[kind] = (v[d + 1:d + 4], v[d + 4:d + 7], v[d])  # (lists: read once)
+            self._b_diag_last[kind] = (v[d + 1:d + 4], v[d + 4:d + 7], v[d])  # (lists: read once)
             if c[FL.CNT_CONSIDER_ST + k]:
                 counters[ST_CONSIDER[j]] += c[FL.CNT_CONSIDER_ST + k]
             if c[FL.CNT_EDITED_ST + k]:
@@ -196,11 +202,27 @@ class LoopShell:
             used = c[FL.CNT_USED_ST + k]
             if used:
                 counters[USED_KEY[kind]] += used
-                self.nis_sum[kind] = v[FL.IO_NIS_SUM_ST + k]
+                self._b_nis_sum[kind] = v[FL.IO_NIS_SUM_ST + k]
             if c[FL.CNT_LOCKED_ST + k]:
-                rec = self.nis_locked[kind]
+                rec = self._b_nis_locked[kind]
                 rec[0] += c[FL.CNT_LOCKED_ST + k]
                 rec[1] = v[FL.IO_NIS_LOCKED_ST + k]
+
+    def gyro_gaps(self) -> int:
+        """``counters["gyro_gaps"]`` (the key made as that read makes it) without taking the
+        rest of what the compiled calls counted (the stream's flags read it at every packet)."""
+        return self._b_counters["gyro_gaps"] + self._cnt.item(FL.CNT_GAPS)
+
+    def _load_bookkeeping(self) -> None:
+        """The bookkeeping the compiled calls continue (last valid tracker epochs, NIS sums) from
+        the Python maps into io, after Python replaced them (a checkpoint restored) or, in the
+        Python oracle of the tests, kept them itself."""
+        io, last, nis, lk = self._io, self.last_valid_st, self.nis_sum, self.nis_locked
+        io[FL.IO_LAST_ST1], io[FL.IO_LAST_ST2] = last.get(1, -math.inf), last.get(2, -math.inf)
+        io[FL.IO_NIS_SUM_PAR] = nis.get("parity", 0.0)
+        io[FL.IO_NIS_SUM_ST], io[FL.IO_NIS_SUM_ST + 1] = nis.get("st1", 0.0), nis.get("st2", 0.0)
+        io[FL.IO_NIS_LOCKED_ST], io[FL.IO_NIS_LOCKED_ST + 1] = lk["st1"][1], lk["st2"][1]
+        io[FL.IO_NIS_LOCKED_PAR] = lk["parity"][1]
 
     #: (counter, CNT field) added after every call
     _COUNTED = (("siru_used", FL.CNT_USED), ("siru_undetermined", FL.CNT_UNDETERMINED),
@@ -210,42 +232,37 @@ class LoopShell:
                 ("parity_used", FL.CNT_PAR_USED), ("parity_edited", FL.CNT_PAR_EDITED),
                 ("parity_early", FL.CNT_PAR_EARLY))
 
-    _sum_pending = _NO_SUM  # the FDI statistic of a parity sum queued since the last hook
-
-    def _parity_done(self, used: int, nis_sum: float) -> None:
-        """Diagnostics of the parity updates of a call: the last one's innovation, σ and NIS,
-        the running NIS sum, and the NIS of the used ones while the time line was locked."""
-        self.diag_last["parity"] = (self.par_innov.copy(), self.par_sig.copy(),
-                                    float(self._io[FL.IO_PAR_NIS]))
-        if used:
-            if self.locked:
-                self.nis_locked["parity"][0] += used
-                self.nis_locked["parity"][1] += nis_sum - self.nis_sum.get("parity", 0.0)
-            self.nis_sum["parity"] = nis_sum
+    def _parity_done(self, v: list, c: list) -> None:
+        """Diagnostics of the parity updates since Python last looked (v, c: io and cnt as
+        lists): the last one's innovation, σ and NIS, the running NIS sum, and the count and
+        NIS sum of the used ones while the time line was locked."""
+        self._b_diag_last["parity"] = (self.par_innov.copy(), self.par_sig.copy(),
+                                       v[FL.IO_PAR_NIS])
+        if c[FL.CNT_PAR_USED]:
+            self._b_nis_sum["parity"] = v[FL.IO_NIS_SUM_PAR]
+        if c[FL.CNT_LOCKED_PAR]:
+            rec = self._b_nis_locked["parity"]
+            rec[0] += c[FL.CNT_LOCKED_PAR]
+            rec[1] = v[FL.IO_NIS_LOCKED_PAR]
 
     def _event(self, code: int, arg: int = 0, t: float = 0.0) -> None:
         """Run :func:`radical_rt.engine.events.engine_event` ``code`` (EV_*; int ``arg``, time
         ``t`` [s]) on the engine's state."""
-        b = self._loop_begin()
+        self._load_bookkeeping()
+        sig_t, _wt, _we = self._call_inputs()
         engine_event(code, arg, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
-                        self._io, self._cnt, b[0], b[1], b[2], b[5], b[6], b[7],
-                        b[8], b[9], b[10])
-        self._loop_end()
+                     self._io, self._cnt, sig_t)
+        self._undrained = True
+        self._call_done()
 
     def _window_state(self, t: float) -> None:
         """:meth:`_event` EV_WINDOW_STATE (the flags and the mode after a close at event time t
-        [s], steps.window_state) for the window hook, without the wake times, the collaborators'
-        settings and the read-back of every counter: the step reads the attitude flag, the last
-        valid epochs, the flags and the factors, and changes only the flags and the mode. The
-        other scalars are loaded as they stand (σ_t as the last call left it)."""
-        last, io, cnt = self.last_valid_st, self._io, self._cnt
+        [s], steps.window_state) for the window hook, without the collaborators' inputs: the
+        step reads the attitude flag, the last valid epochs, the flags and the factors, and
+        changes only the flags and the mode (σ_t as the last call left it)."""
+        io = self._io
         engine_event(EV_WINDOW_STATE, 0, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
-                     io, cnt, self.t, self.locked_since, float(io[FL.IO_SIG_T]),
-                     1.0 if self.att_valid else 0.0, last.get(1, -math.inf),
-                     last.get(2, -math.inf), MODE_CODE[self.mode], int(self.flags),
-                     self.nis_sum.get("parity", 0.0))
-        self.flags = int(cnt[FL.CNT_FLAGS])
-        self.mode = _MODE_NAME[float(io[FL.IO_MODE])]
+                     io, self._cnt, io.item(FL.IO_SIG_T))
 
     def _loop_config(self) -> None:
         """Scalar parameters and io arrays of the kernel (after every parameter change)."""
@@ -261,5 +278,3 @@ class LoopShell:
             "lat_p": self._lat_col - 3, "st_min_stars": si.st_min_stars,
             "gate_parity": si.gate_parity_nis, "att_init_scale": si.att_init_scale,
             "fdi_on": 0.0, "hook_sum": 0.0})
-        self._io = np.zeros(FL.IO.end)
-        self._cnt = np.zeros(FL.CNT.end, np.int64)

@@ -37,6 +37,7 @@ from radical_rt.engine.loop_layout import (
     CFG_TIMING_CONSIDER,
     CNT_ATT_INITS,
     CNT_FLAGS,
+    CNT_LOCKED_PAR,
     CNT_NUMERIC,
     CNT_NUMERIC_CODE,
     CNT_PAR_EARLY,
@@ -50,6 +51,7 @@ from radical_rt.engine.loop_layout import (
     IO_LAST_ST2,
     IO_LOCKED_SINCE,
     IO_MODE,
+    IO_NIS_LOCKED_PAR,
     IO_NIS_SUM_PAR,
     IO_PAR_NIS,
     IO_PAR_NU,
@@ -366,6 +368,9 @@ def parity_update(par_y, par_t, noise, E, cfg, io, cnt):
     else:
         cnt[CNT_PAR_USED] += 1
         io[IO_NIS_SUM_PAR] += nis
+        if io[IO_SIG_T] <= cfg[CFG_TIMING_CONSIDER]:  # the time line locked: calibrating
+            cnt[CNT_LOCKED_PAR] += 1
+            io[IO_NIS_LOCKED_PAR] += nis
 
 
 @inline_kernel

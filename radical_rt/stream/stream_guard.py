@@ -182,7 +182,7 @@ class StreamGuards:
 
     def _guard_flags(self) -> int:
         e, f = self.engine, (_LINK_LOSS if self.link_lost else 0)
-        g = e.counters["gyro_gaps"]
+        g = e.gyro_gaps()
         if g != self._gyro_gaps_seen:
             self._gyro_gaps_seen = g
             self._gyro_gap.set()
