@@ -30,7 +30,11 @@ from radical_rt.engine.loop_layout import (
 )
 from radical_rt.engine.steps import MODE_CONVERGED, MODE_CONVERGING, MODE_DEGRADED, MODE_INIT
 from radical_rt.kernels import ud
-from radical_rt.kernels.parametrization import contract_from_internal, contract_sigma_ud
+from radical_rt.kernels.parametrization import (
+    contract_from_internal,
+    contract_sigma_ud,
+    contract_values,
+)
 
 #: the mode names and their codes in io (IO_MODE)
 MODE_CODE = {"init": MODE_INIT, "converging": MODE_CONVERGING, "converged": MODE_CONVERGED,
@@ -257,8 +261,12 @@ class EngineState:
 
     def estimates(self) -> dict[str, list[float]]:
         """Parameter estimates per group (CONTRACT §1.5 parameters), SI."""
-        xc, _ = contract_from_internal(self.xp, self.n_gyro)
-        return self._by_group(xc)
+        npar = self.xp.shape[0]
+        if self._est_work is None or self._est_work.shape[0] != npar:
+            self._est_work = np.zeros((npar, npar))
+        return self._by_group(contract_values(self.xp, self.n_gyro, self._est_work))
+
+    _est_work: np.ndarray | None = None  # the unused Jacobian of contract_values
 
     def _by_group(self, values: np.ndarray) -> dict[str, list[float]]:
         """Split a parameter vector (npar,) into {group: list} (PARAM_GROUPS order)."""

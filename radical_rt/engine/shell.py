@@ -68,7 +68,8 @@ class LoopShell:
         io, cnt, run = self._io, self._cnt, lp.run_release
         k, e = a, events.start
         while k < z or e < n_ev:
-            bank = None if fdi is None else fdi.kernel_bank()
+            bank, wake_fdi, every, fdi_on = (None, math.inf, False, False) if fdi is None \
+                else fdi.release_inputs(self)
             if bank is None:
                 bk = self._no_bank
             else:  # the kernel runs the bank on its valid tracker samples (FaultMonitor.kernel_bank)
@@ -79,7 +80,7 @@ class LoopShell:
                 g_f, g_i, g_b = hist.blocks()[:3]
             if trk is not None:
                 trk_f, trk_i = trk.reserve(n_ev - e)
-            sig_t, wake_t, wake_e = self._call_inputs()
+            sig_t, wake_t, wake_e = self._call_inputs(wake_fdi, every, fdi_on)
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, g_f, g_i, g_b,
@@ -111,24 +112,30 @@ class LoopShell:
     _no_trk_f, _no_trk_i = np.zeros((0, 5)), np.zeros((0, 3), np.int64)
 
     # ---------------------------------------------------------------- kernel state
-    def _call_inputs(self) -> tuple[float, float, float]:
+    def _call_inputs(self, wake_fdi: float, every: bool, fdi_on: bool) -> tuple[float, float,
+                                                                                 float]:
         """The collaborators' inputs of a compiled call: σ of the time line [s] and the wake
-        times wake_t, wake_e [s] (the hooks': the stream's packets and flags; the FDI's). Also
-        sets the configuration that follows the collaborators: IO_WAKE_EVERY (the window hook
-        after every tracker sample, for a bank the kernel cannot run), CFG_FDI_ON and
-        CFG_HOOK_SUM. The rest of the scalar state stays in io and cnt between calls."""
-        fdi = self.fdi
+        times wake_t, wake_e [s] (the hooks': the stream's packets and flags; the FDI's
+        ``wake_fdi``). Also sets the configuration that follows the collaborators:
+        IO_WAKE_EVERY (``every``: the window hook after every tracker sample, for a bank the
+        kernel cannot run), CFG_FDI_ON (``fdi_on``) and CFG_HOOK_SUM (a parity sum wakes the
+        hook: an FDI or an excitation monitor). The FDI's figures come from
+        :meth:`radical_rt.fdi.monitor.FaultMonitor.release_inputs` (without FDI: inf, False,
+        False). The rest of the scalar state stays in io and cnt between calls."""
         wake_t, wake_e = self.hooks.wake()
         io, cfg = self._io, self._cfg
-        if fdi is not None:
-            wake_e = min(wake_e, fdi.wake_time())
-            io[FL.IO_WAKE_EVERY] = 1.0 if fdi.wake_on_tracker() else 0.0
-            cfg[FL.CFG_FDI_ON] = 1.0 if fdi.enabled(self) else 0.0
-            cfg[FL.CFG_HOOK_SUM] = 1.0
-        else:
-            io[FL.IO_WAKE_EVERY] = cfg[FL.CFG_FDI_ON] = 0.0
-            cfg[FL.CFG_HOOK_SUM] = 0.0 if self.excitation is None else 1.0
-        return self.timing_sigma(), wake_t, wake_e
+        io[FL.IO_WAKE_EVERY] = 1.0 if every else 0.0
+        cfg[FL.CFG_FDI_ON] = 1.0 if fdi_on else 0.0
+        cfg[FL.CFG_HOOK_SUM] = 1.0 if self.fdi is not None or self.excitation is not None else 0.0
+        return self.timing_sigma(), wake_t, min(wake_e, wake_fdi)
+
+    def _fdi_inputs(self) -> tuple[float, bool, bool]:
+        """The FDI's inputs of a compiled call outside a release (wake time, every tracker,
+        enabled; see :meth:`_call_inputs`)."""
+        fdi = self.fdi
+        if fdi is None:
+            return math.inf, False, False
+        return fdi.release_inputs(self)[1:]
 
     def _call_done(self) -> None:
         """After a compiled call, what cannot wait until Python reads the bookkeeping: the FDI's
@@ -249,7 +256,7 @@ class LoopShell:
         """Run :func:`radical_rt.engine.events.engine_event` ``code`` (EV_*; int ``arg``, time
         ``t`` [s]) on the engine's state."""
         self._load_bookkeeping()
-        sig_t, _wt, _we = self._call_inputs()
+        sig_t, _wt, _we = self._call_inputs(*self._fdi_inputs())
         engine_event(code, arg, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
                      self._io, self._cnt, sig_t)
         self._undrained = True

@@ -187,6 +187,16 @@ class FaultMonitor(IsolationSteps, MonitorState):
         the compiled release cannot run itself (:meth:`kernel_bank`)."""
         return self.state == "alarm" and self.bank is not None and self.kernel_bank() is None
 
+    def release_inputs(self, eng) -> tuple[HypothesisBank | None, float, bool, bool]:
+        """What a compiled call of the engine needs from the FDI, in one call: (the bank it runs,
+        :meth:`kernel_bank`; :meth:`wake_time`; :meth:`wake_on_tracker`; :meth:`enabled`)."""
+        if self.state != "alarm":  # the common case: no bank
+            wake = -math.inf if self._sum_seen else self._next_check
+            return None, wake, False, bool(self._p(eng, "enabled", True))
+        bank = self.kernel_bank()
+        return (bank, self.wake_time(), self.bank is not None and bank is None,
+                bool(self._p(eng, "enabled", True)))
+
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker
         samples and hand over only when its decision is due (radical_rt.engine.loop; docs/fdi.md

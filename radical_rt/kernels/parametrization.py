@@ -30,6 +30,15 @@ def contract_from_internal(xp, n):
     return out, J
 
 
+def contract_values(xp, n, J_work):
+    """The contract parameters (5n+3,) of :func:`contract_from_internal` alone: xp (5n+3,) float64
+    internal; J_work (5n+3, 5n+3) a work array that only ever receives this conversion's
+    Jacobian (its entries outside the per-gyro blocks are not read)."""
+    out = xp.copy()
+    _contract_from_internal(xp, int(n), out, J_work)
+    return out
+
+
 @kernel
 def contract_sigma_ud(xp, n, U, d, J, sig):
     """1σ (npar,) of the contract parameters into sig, straight from the UD factors: σ_i² =

@@ -133,8 +133,8 @@ class StreamOutputs:
             if spec.due(self.t_now):
                 if now is None:
                     pred = self._pred
-                    now = _now_fields(float(pred[1]), pred[2:6], pred[6:9]) if pred[0] == 2.0 \
-                        else self.now()
+                    p = pred.tolist()  # (one read: flag, t, q (4,), ω (3,))
+                    now = _now_fields(p[1], p[2:6], p[6:9]) if p[0] == 2.0 else self.now()
                 self._out.append((key, build(spec, self, now)))
 
     def now(self) -> dict[str, Any]:
@@ -145,13 +145,13 @@ class StreamOutputs:
         e = self.engine
         q, omega = e.q.copy(), e.omega.copy()
         if not e.att_valid:
-            return _now_fields(e.t, q, omega)
+            return _now_fields(e.t, q.tolist(), omega.tolist())
         gq = self.gyro_q
         # the newest read, held back by the clock's look-ahead, taken as the next sample
         clock_I, clock_F = self.clock.state_arrays()
         t = predict_pending(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, self.t_now, clock_I,
                             clock_F, e.excluded, e.xp, e.A, e.Gp, q, omega)
-        return _now_fields(t, q, omega)
+        return _now_fields(t, q.tolist(), omega.tolist())
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}
@@ -212,6 +212,7 @@ def _d_range(d: np.ndarray) -> dict[str, float]:
     return {"d_min": lo, "d_max": hi}
 
 
-def _now_fields(t: float, q: np.ndarray, omega: np.ndarray) -> dict[str, Any]:
-    """Packet fields that a sample-triggered packet takes from the prediction."""
-    return {"t": t, "q_body_from_inertial": q.tolist(), "omega_body": omega.tolist()}
+def _now_fields(t: float, q: list[float], omega: list[float]) -> dict[str, Any]:
+    """Packet fields that a sample-triggered packet takes from the prediction (t [s], q (4,)
+    scalar-last, ω (3,) [rad/s], as plain floats)."""
+    return {"t": t, "q_body_from_inertial": q, "omega_body": omega}
