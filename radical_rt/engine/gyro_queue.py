@@ -25,7 +25,7 @@ class GyroQueue:
     """Samples ``head``..``end``−1 of the arrays t, dt [s], dtheta (·, n) [rad], status (int bits),
     bridged (bool), var_extra [rad²] are pending, in time order."""
 
-    def __init__(self, n_gyro: int, capacity: int = 256) -> None:
+    def __init__(self, n_gyro: int, capacity: int = 2048) -> None:
         self.n_gyro = n_gyro
         self._alloc(capacity)
         self.head = self.end = 0

@@ -109,11 +109,11 @@ class StreamProcessor(StreamOutputs, StreamGuards):
 
     # newest t_bus of any input [s]; epoch up to which samples count as released [s]; late
     # tracker samples dropped (shared with the compiled intake, radical_rt.stream.tracker_queue)
-    t_max = property(lambda self: float(self.tracker_q.ss[SS_T_MAX]),
+    t_max = property(lambda self: self.tracker_q.ss.item(SS_T_MAX),
                      lambda self, v: self.tracker_q.ss.__setitem__(SS_T_MAX, v))
-    released_t = property(lambda self: float(self.tracker_q.ss[SS_RELEASED]),
+    released_t = property(lambda self: self.tracker_q.ss.item(SS_RELEASED),
                           lambda self, v: self.tracker_q.ss.__setitem__(SS_RELEASED, v))
-    late_dropped = property(lambda self: int(self.tracker_q.si[SI_LATE]),
+    late_dropped = property(lambda self: self.tracker_q.si.item(SI_LATE),
                             lambda self, v: self.tracker_q.si.__setitem__(SI_LATE, v))
 
     def feed(self, topic: str, payload: bytes | dict) -> list[tuple[str, dict[str, Any]]]:
