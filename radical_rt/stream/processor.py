@@ -179,11 +179,11 @@ class StreamProcessor(StreamOutputs, StreamGuards):
         (:meth:`radical_rt.stream.siru_wire.SiruWire.accept`)."""
         ss, gq = self.tracker_q.ss, self.gyro_q
         status = WIRE_FALLBACK
-        prev = float(ss[SS_LAST_SIRU])
+        prev = ss.item(SS_LAST_SIRU)
         if isinstance(payload, (bytes, bytearray, memoryview)):
             status, k, m = self._wire.intake(self.clock, payload, gq, ss, SS_LAST_SIRU,
                                              SS_T_MAX)
-            t0 = float(self._wire.t_bus[0])
+            t0 = self._wire.t_bus.item(0)
             if status == WIRE_JUMP:
                 w = self._wire
                 raise TimeJump("siru", t0, float(w.t_bus[k - 1]), float(ss[SS_T_MAX]),
@@ -204,7 +204,7 @@ class StreamProcessor(StreamOutputs, StreamGuards):
         if t0 - prev > self.input_gap_s and prev > -math.inf:  # a gap in the siru bus times
             self._note_input_gap(t0 - prev)
         if m:
-            self.t_now = float(gq.t[gq.end - 1])
+            self.t_now = gq.t.item(gq.end - 1)
             self._new_sample = True
 
     def _feed_tracker(self, topic: str, payload) -> bool:
@@ -219,22 +219,24 @@ class StreamProcessor(StreamOutputs, StreamGuards):
         decoded = None
         if self._conflict.until[j] > -math.inf and self._conflicted(j, topic, payload):
             return False  # in conflict: not used (counted)
-        prev = float(tq.ss[SS_LAST + j])
+        prev = tq.ss.item(SS_LAST + j)
         while True:  # once, or again after the queue grew (IN_FULL: nothing changed)
-            args = (j, si.latency_st_s, self.reorder_slack_s, tq.ss, tq.si, tq.ev_f, tq.ev_i,
-                    gq.t, gq.head, gq.end, int(e.acc_i[0]), si.prop_window)
             code = IN_FALLBACK
             if plain and decoded is None:
-                code = tracker_intake(np.frombuffer(payload, np.uint8), *args, tq.q_work)
+                code = tracker_intake(np.frombuffer(payload, np.uint8), j, si.latency_st_s,
+                                      self.reorder_slack_s, tq.ss, tq.si, tq.ev_f, tq.ev_i, gq.t,
+                                      gq.head, gq.end, e.acc_i.item(0), si.prop_window, tq.q_work)
             if code == IN_FALLBACK:
                 decoded = decoded or decode_tracker(unpack(payload))
-                code = tracker_accept(*decoded, *args)
+                code = tracker_accept(*decoded, j, si.latency_st_s, self.reorder_slack_s, tq.ss,
+                                      tq.si, tq.ev_f, tq.ev_i, gq.t, gq.head, gq.end,
+                                      e.acc_i.item(0), si.prop_window)
             if code != IN_FULL:
                 break
             if not tq.grow(self.max_tracker_rows):
                 raise InputError("queue_full", f"{topic}: {len(tq)} tracker samples already wait "
                                                f"for release (bound {self.max_tracker_rows})")
-        t_in = float(tq.ss[SS_T_IN])
+        t_in = tq.ss.item(SS_T_IN)
         if code == IN_JUMP:
             raise TimeJump(topic, t_in, t_in, float(tq.ss[SS_T_MAX]))
         q_in = tq.q_work if decoded is None else decoded[1]
@@ -273,7 +275,7 @@ class StreamProcessor(StreamOutputs, StreamGuards):
         pred[0] = 0.0  # no prediction from this release (yet)
         a = gq.head
         plan, e1, z = release_plan(tq.ss, tq.si, tq.ev_f, gq.t, a, gq.end, watermark,
-                                   int(e.acc_i[0]), e.si.prop_window, defer)
+                                   e.acc_i.item(0), e.si.prop_window, defer)
         if plan != PLAN_GO:
             return
         gq.head = z  # taken before the engine runs
