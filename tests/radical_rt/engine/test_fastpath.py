@@ -50,6 +50,12 @@ def assert_same(messages, params=None):
         assert np.array_equal(getattr(ef, name), getattr(er, name)), name
     assert dict(ef.counters) == dict(er.counters)
     assert dict(ef.nis_sum) == dict(er.nis_sum)
+    assert ef.nis_locked == er.nis_locked  # (both sum each NIS while the time line is locked)
+    assert ef.last_valid_st == er.last_valid_st
+    assert list(ef.diag_last) == list(er.diag_last)
+    for kind, (innov, sig, nis) in ef.diag_last.items():
+        r_innov, r_sig, r_nis = er.diag_last[kind]
+        assert np.array_equal(innov, r_innov) and np.array_equal(sig, r_sig) and nis == r_nis, kind
     assert (ef.flags, ef.mode, ef.t, ef.locked_since) == (er.flags, er.mode, er.t, er.locked_since)
     return fast, out_fast
 
