@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import msgpack
+import numpy as np
 import pytest
 
 from radical_rt.apps.batch import process
@@ -100,3 +101,19 @@ def wait_for(pred, timeout: float = 30.0, step: float = 0.02, what: str = "condi
             return v
         time.sleep(step)
     raise AssertionError(f"timed out waiting for {what}")
+
+
+SI_KEYS = ("estimate", "sigma")
+
+
+def final_summary(mn: MemNode, vehicle: str = "v1") -> dict:
+    """End the vehicle's stream (no next stream) and return the summary of its reply."""
+    r = mn.cmd(vehicle, cmd="end_stream", next="none")
+    assert r["ok"], r
+    return r["summary"]
+
+
+def same_estimates(a: dict, b: dict) -> bool:
+    """Bit-identical estimates and sigmas (msgpack float64 round-trips exactly)."""
+    return all(np.array_equal(np.array(a[k][g]), np.array(b[k][g]))
+               for k in SI_KEYS for g in a[k]) and a["t_end"] == b["t_end"]
