@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,43 +17,18 @@ from radical_rt.apps.cli import main as radical_main
 from radical_rt.apps.node import FilterNode
 from radical_rt.apps.node_setup import build_processors
 from radical_rt.io import checkpoint as ckpt
-from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
 from tests.support.node import cmd, input_messages, wait_for
+from tests.support.node_zenoh import NodeProc, free_endpoint, publish, wait_fed
 
 pytestmark = pytest.mark.zenoh
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def _ep() -> str:
-    return f"tcp/127.0.0.1:{zconfig.free_port()}"
-
-
-def publish(client: ZenohTransport, vehicle: str, msgs, rate: float | None = None) -> dict[str, int]:
-    """Publish input messages in log_time order with BLOCK congestion control (paced if rate)."""
-    counts: dict[str, int] = {}
-    t0, ns0 = time.monotonic(), msgs[0][1] if msgs else 0
-    for topic, ns, data in msgs:
-        if rate:
-            delay = t0 + (ns - ns0) / 1e9 / rate - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-        client.put(f"radical/{vehicle}/{topic}", data, block=True)
-        counts[topic] = counts.get(topic, 0) + 1
-    return counts
-
-
-def wait_fed(client, vehicle, counts, timeout=60.0) -> dict:
-    def done():
-        st = cmd(client, vehicle, cmd="status")
-        return st if st["node"]["fed"] == counts and st["node"]["queue_depth"] == 0 else None
-    return wait_for(done, timeout, 0.05, "the node to feed every message")
-
-
 # ------------------------------------------------------------------------------ in-thread node
 def test_node_over_zenoh_equals_batch_and_commands(archives, batch_ref, tmp_path):  # noqa: F811
-    ep = _ep()
+    ep = free_endpoint()
     node_t = ZenohTransport("peer", listen=[ep])
     node = FilterNode(node_t, build_processors(["zz"]), block_outputs=True)
     node.start()
@@ -106,7 +79,7 @@ def test_node_over_zenoh_equals_batch_and_commands(archives, batch_ref, tmp_path
 
 def test_node_behind_a_router(archives):  # noqa: F811
     """--connect: node and client both reach each other through a (Python) Zenoh router."""
-    ep = _ep()
+    ep = free_endpoint()
     router = ZenohTransport("router", listen=[ep])
     node_t = ZenohTransport("peer", connect=[ep])
     node = FilterNode(node_t, build_processors(["r1", "r2"]))
@@ -125,34 +98,6 @@ def test_node_behind_a_router(archives):  # noqa: F811
         node.stop()
         node_t.close()
         router.close()
-
-
-# ------------------------------------------------------------------------------ subprocess node
-class NodeProc:
-    """`radical node` in a subprocess; stderr goes to a file (read to see 'ready')."""
-
-    def __init__(self, tmp: Path, name: str, *args: str) -> None:
-        self.ep = _ep()
-        self.log = tmp / f"{name}.log"
-        self.f = open(self.log, "wb")
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.p = subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", "node", "--listen",
-                                   self.ep, *args], stdout=self.f, stderr=subprocess.STDOUT,
-                                  cwd=ROOT, env=env)
-        wait_for(lambda: "ready" in self.text() or self.p.poll() is not None, 120, 0.05,
-                 f"node {name} to start")
-        assert self.p.poll() is None, self.text()
-        self.client = ZenohTransport("peer", connect=[self.ep])
-
-    def text(self) -> str:
-        return self.log.read_text(errors="replace")
-
-    def close(self) -> None:
-        self.client.close()
-        if self.p.poll() is None:
-            self.p.kill()
-            self.p.wait(10)
-        self.f.close()
 
 
 def test_kill9_and_resume(archives, batch_ref, tmp_path):  # noqa: F811
@@ -233,7 +178,7 @@ def test_cli_duration_and_packets(tmp_path, capsys):
     pk = tmp_path / "packets.toml"
     pk.write_text('[packets.small]\nperiod_s = 0.5\nfields = ["seq", "t", "flags"]\n')
     ck = tmp_path / "c.ckpt"
-    rc = radical_main(["node", "--vehicle", "a", "--vehicle", "b", "--listen", _ep(),
+    rc = radical_main(["node", "--vehicle", "a", "--vehicle", "b", "--listen", free_endpoint(),
                        "--packets", str(pk), "--checkpoint", str(ck), "--duration", "0.5"])
     assert rc == 0
     doc = ckpt.read(ck)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from radical_rt.io import checkpoint as ckpt
-from tests.radical_rt.apps.test_node_zenoh import NodeProc, publish, wait_fed
 from tests.support.node import cmd, input_messages, wait_for
+from tests.support.node_zenoh import NodeProc, publish, wait_fed
 
 pytestmark = pytest.mark.zenoh
 
