@@ -1,8 +1,12 @@
-"""Watching a fleet from a client session (tests): ownership tokens and who publishes diag."""
+"""Fleet test helpers: watching a fleet from a client session (ownership tokens and who publishes
+diag), `radical` subprocesses and waiting for a line on their stderr."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
+import time
 
 import msgpack
 
@@ -39,3 +43,24 @@ class FleetWatch:
                 if not out.setdefault(v, []) or out[v][-1] != w:
                     out[v].append(w)
         return out
+
+
+def spawn_cli(*argv: str) -> subprocess.Popen:
+    """`radical ARGV…` in a subprocess, stderr piped (text), stdout discarded."""
+    return subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", *argv],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def wait_line(p: subprocess.Popen, needle: str, timeout: float = 120.0) -> None:
+    """Read p's stderr until a line contains ``needle`` (then keep the pipe drained in a
+    thread); AssertionError after ``timeout`` s or when p ends first."""
+    assert p.stderr is not None
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        line = p.stderr.readline()
+        if needle in line:
+            threading.Thread(target=p.stderr.read, daemon=True).start()  # keep the pipe drained
+            return
+        if not line and p.poll() is not None:
+            break
+    raise AssertionError(f"no {needle!r} from {p.args}")

@@ -6,6 +6,7 @@
   are the object's own). The accesses that remain are listed in KNOWN, each to be removed by the
   engine redesign; the test fails on any new one, and on a listed one that is gone (so that the
   list only shrinks).
+* No module imports from a ``test_*`` module: shared test helpers live in tests/support.
 """
 
 from __future__ import annotations
@@ -77,3 +78,23 @@ def test_the_checks_see_a_violation(tmp_path):
     attrs = [ast.unparse(n) for n in ast.walk(tree) if isinstance(n, ast.Attribute)
              and _private(n.attr) and not (isinstance(n.value, ast.Name) and n.value.id == "self")]
     assert len(imports) == 1 and attrs == ["other._y"]
+
+
+def test_modules_import_no_test_module():
+    """Shared test helpers live in tests/support (and the oracles in tests/oracles): no module
+    imports from a ``test_*`` module (a test's helpers would otherwise run its module's tests'
+    imports and fixtures wherever they are used)."""
+    bad = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        if "node_modules" in path.parts:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            mods = ([node.module or ""] if isinstance(node, ast.ImportFrom)
+                    else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            bad += [f"{path.relative_to(ROOT)}:{node.lineno}: {m}" for m in mods
+                    if any(part.startswith("test_") for part in m.split("."))]
+    for rel, tree in _modules():  # nor do the shipped packages (perf, studies)
+        bad += [f"{rel}:{n.lineno}: {n.module}" for n in ast.walk(tree)
+                if isinstance(n, ast.ImportFrom)
+                and any(p.startswith("test_") for p in (n.module or "").split("."))]
+    assert bad == []

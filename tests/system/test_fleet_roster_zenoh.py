@@ -12,8 +12,8 @@ import pytest
 
 from radical_rt.io import zconfig
 from radical_rt.io.zenoh_transport import ZenohTransport
+from tests.support.fleet import spawn_cli, wait_line
 from tests.support.node import wait_for
-from tests.system.test_fleet_zenoh import _spawn, _wait_line
 
 pytestmark = pytest.mark.zenoh
 
@@ -31,15 +31,15 @@ def _status(client: ZenohTransport) -> list[dict]:
 
 def test_fleet_add_remove_and_discovery_over_a_router():
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
-    router = _spawn("router", "--listen", ep)
+    router = spawn_cli("router", "--listen", ep)
     procs = [router]
     client = None
     try:
-        _wait_line(router, "ready", 60)
-        worker = _spawn("node", "--fleet", "f1", "--connect", ep, "--workers", "1",
+        wait_line(router, "ready", 60)
+        worker = spawn_cli("node", "--fleet", "f1", "--connect", ep, "--workers", "1",
                         "--vehicle", "v1", "--discover", "temp", "--log-level", "info")
         procs.append(worker)
-        _wait_line(worker, "ready", 180)
+        wait_line(worker, "ready", 180)
         client = ZenohTransport("client", connect=[ep])
 
         out = _cli("fleet", "add", "v9", "--fleet", "f1", "--connect", ep)

@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import msgpack
@@ -21,30 +20,12 @@ from radical_rt.fleet.ownership import assign
 from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader
 from radical_rt.io.zenoh_transport import ZenohTransport
-from tests.support.fleet import FleetWatch
+from tests.support.fleet import FleetWatch, spawn_cli, wait_line
 from tests.support.node import input_messages, wait_for
 
 pytestmark = pytest.mark.zenoh
 VEHICLES = ["va", "vb", "vc"]
 RATE = 6.0  # archive seconds per wall second
-
-
-def _spawn(*argv: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "radical_rt.apps.cli", *argv],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-
-
-def _wait_line(p: subprocess.Popen, needle: str, timeout: float = 120.0) -> None:
-    assert p.stderr is not None
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        line = p.stderr.readline()
-        if needle in line:
-            threading.Thread(target=p.stderr.read, daemon=True).start()  # keep the pipe drained
-            return
-        if not line and p.poll() is not None:
-            break
-    raise AssertionError(f"no {needle!r} from {p.args}")
 
 
 def _owner_of(client: ZenohTransport, v: str) -> str | None:
@@ -81,16 +62,16 @@ def test_fleet_option_errors(capsys):
 
 def test_kill_one_worker_mid_stream(archives):
     ep = f"tcp/127.0.0.1:{zconfig.free_port()}"
-    router = _spawn("router", "--listen", ep)
-    _wait_line(router, "ready", 60)
+    router = spawn_cli("router", "--listen", ep)
+    wait_line(router, "ready", 60)
     worker_args = ["node", "--fleet", "f1", "--connect", ep, "--workers", "1",
                    "--checkpoint-every", "2", "--log-level", "info",
                    *[a for v in VEHICLES for a in ("--vehicle", v)]]
-    workers = [_spawn(*worker_args) for _ in range(2)]
+    workers = [spawn_cli(*worker_args) for _ in range(2)]
     client = ZenohTransport("client", connect=[ep])
     try:
         for w in workers:
-            _wait_line(w, "ready", 180)
+            wait_line(w, "ready", 180)
         watch = FleetWatch(client, "f1")
         def settled() -> bool:  # both workers up, each serving what rendezvous hashing gives it
             ws = [msgpack.unpackb(r, raw=False) for r in client.get(
