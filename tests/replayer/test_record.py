@@ -4,7 +4,6 @@ wildcard), skipped keys, schemas, periodic flushing, clean stops, bad inputs. Ro
 
 from __future__ import annotations
 
-import contextlib
 import json
 import shutil
 import signal
@@ -21,27 +20,11 @@ from mcap.reader import make_reader
 
 from radical_rt.apps.cli import main as cli_main
 from radical_rt.contract.schemas import SCHEMAS
-from radical_rt.io import zconfig
 from radical_rt.io.archive import ArchiveReader, TruncatedArchiveWarning
 from replayer.recorder import RecordError, bus_time_ns, parse_topics, record
+from tests.support.replay_bus import ep, session
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def ep() -> str:
-    return f"tcp/127.0.0.1:{zconfig.free_port()}"
-
-
-@contextlib.contextmanager
-def session(listen: str | None = None, connect: str | None = None):
-    import zenoh
-
-    s = zenoh.open(zconfig.make_config("peer", listen=[listen] if listen else [],
-                                       connect=[connect] if connect else []))
-    try:
-        yield s
-    finally:
-        s.close()
 
 
 def pack(m: dict) -> bytes:

@@ -41,11 +41,13 @@ def recorded(path: Path | str) -> dict[str, list[tuple[int, bytes]]]:
 
 
 def ep() -> str:
+    """tcp/127.0.0.1:PORT on a free port."""
     return f"tcp/127.0.0.1:{zconfig.free_port()}"
 
 
 @contextlib.contextmanager
 def session(listen: str | None = None, connect: str | None = None):
+    """A Zenoh peer session from zconfig.make_config (loopback endpoints, no multicast scouting)."""
     import zenoh
 
     s = zenoh.open(zconfig.make_config("peer", listen=[listen] if listen else [],
