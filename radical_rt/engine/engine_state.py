@@ -42,6 +42,12 @@ MODE_CODE = {"init": MODE_INIT, "converging": MODE_CONVERGING, "converged": MODE
 MODE_NAME = {v: k for k, v in MODE_CODE.items()}
 
 
+def _io_float(index: int, doc: str) -> property:
+    """A float of the engine's io array (loop_layout.IO) as an attribute."""
+    return property(lambda self: self._io.item(index),
+                    lambda self, v: self._io.__setitem__(index, v), doc=doc)
+
+
 def _drained(name: str, doc: str) -> property:
     """A bookkeeping attribute stored as ``_b_<name>``, read and replaced after
     :meth:`EngineState._drain`."""
@@ -133,23 +139,9 @@ class EngineState:
 
     # ---------------------------------------------------------------- scalar state
     # Views of io and cnt, where the compiled calls keep them: always current.
-    @property
-    def t(self) -> float:
-        """Engine time: the newest event given to the filter [s] (−inf: none yet)."""
-        return self._io.item(IO_T)
-
-    @t.setter
-    def t(self, v: float) -> None:
-        self._io[IO_T] = v
-
-    @property
-    def locked_since(self) -> float:
-        """Start of the current locked run of the time line [s] (inf: not locked)."""
-        return self._io.item(IO_LOCKED_SINCE)
-
-    @locked_since.setter
-    def locked_since(self, v: float) -> None:
-        self._io[IO_LOCKED_SINCE] = v
+    t = _io_float(IO_T, "Engine time: the newest event given to the filter [s] (−inf: none yet).")
+    locked_since = _io_float(IO_LOCKED_SINCE, "Start of the current locked run of the time line "
+                                              "[s] (inf: not locked).")
 
     @property
     def att_valid(self) -> bool:
@@ -261,12 +253,7 @@ class EngineState:
 
     def estimates(self) -> dict[str, list[float]]:
         """Parameter estimates per group (CONTRACT §1.5 parameters), SI."""
-        npar = self.xp.shape[0]
-        if self._est_work is None or self._est_work.shape[0] != npar:
-            self._est_work = np.zeros((npar, npar))
-        return self._by_group(contract_values(self.xp, self.n_gyro, self._est_work))
-
-    _est_work: np.ndarray | None = None  # the unused Jacobian of contract_values
+        return self._by_group(contract_values(self.xp, self.n_gyro, self._jacobian_work()))
 
     def _by_group(self, values: np.ndarray) -> dict[str, list[float]]:
         """Split a parameter vector (npar,) into {group: list} (PARAM_GROUPS order)."""
@@ -284,14 +271,19 @@ class EngineState:
         factors, Σ_l d_l (J U_pp)²_il (P_pp = U_pp D_p U_ppᵀ because U is unit upper triangular;
         neither P nor J P Jᵀ is formed; :func:`radical_rt.kernels.parametrization.contract_sigma_ud`). The dense
         reference overrides it."""
-        npar = self.xp.shape[0]
-        if self._sig_work is None or self._sig_work.shape[0] != npar:
-            self._sig_work = np.empty((npar, npar))
-        sig = np.empty(npar)
-        contract_sigma_ud(self.xp, self.n_gyro, self.U, self.d, self._sig_work, sig)
+        sig = np.empty(self.xp.shape[0])
+        contract_sigma_ud(self.xp, self.n_gyro, self.U, self.d, self._jacobian_work(), sig)
         return sig
 
-    _sig_work: np.ndarray | None = None  # J of contract_sigma_ud
+    def _jacobian_work(self) -> np.ndarray:
+        """Work array (npar, npar) for the Jacobian ∂contract/∂internal of :meth:`estimates` and
+        :meth:`contract_sigma` (neither reads what it holds)."""
+        npar = self.xp.shape[0]
+        if self._j_work is None or self._j_work.shape[0] != npar:
+            self._j_work = np.zeros((npar, npar))
+        return self._j_work
+
+    _j_work: np.ndarray | None = None
 
     def att_sigma(self) -> list[float]:
         """Attitude 1σ, body axes [rad] (from the UD variances)."""

@@ -68,8 +68,7 @@ class LoopShell:
         io, cnt, run = self._io, self._cnt, lp.run_release
         k, e = a, events.start
         while k < z or e < n_ev:
-            bank, wake_fdi, every, fdi_on = (None, math.inf, False, False) if fdi is None \
-                else fdi.release_inputs(self)
+            bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
             if bank is None:
                 bk = self._no_bank
             else:  # the kernel runs the bank on its valid tracker samples (FaultMonitor.kernel_bank)
@@ -123,19 +122,21 @@ class LoopShell:
         :meth:`radical_rt.fdi.monitor.FaultMonitor.release_inputs` (without FDI: inf, False,
         False). The rest of the scalar state stays in io and cnt between calls."""
         wake_t, wake_e = self.hooks.wake()
-        io, cfg = self._io, self._cfg
-        io[FL.IO_WAKE_EVERY] = 1.0 if every else 0.0
-        cfg[FL.CFG_FDI_ON] = 1.0 if fdi_on else 0.0
-        cfg[FL.CFG_HOOK_SUM] = 1.0 if self.fdi is not None or self.excitation is not None else 0.0
+        self._set_collaborators(every, fdi_on)
         return self.timing_sigma(), wake_t, min(wake_e, wake_fdi)
 
-    def _fdi_inputs(self) -> tuple[float, bool, bool]:
-        """The FDI's inputs of a compiled call outside a release (wake time, every tracker,
-        enabled; see :meth:`_call_inputs`)."""
+    def _fdi_release_inputs(self) -> tuple:
+        """:meth:`radical_rt.fdi.monitor.FaultMonitor.release_inputs` (bank, wake time, window
+        hook after every tracker sample, enabled); without FDI (None, inf, False, False)."""
         fdi = self.fdi
-        if fdi is None:
-            return math.inf, False, False
-        return fdi.release_inputs(self)[1:]
+        return (None, math.inf, False, False) if fdi is None else fdi.release_inputs(self)
+
+    def _set_collaborators(self, every: bool, fdi_on: bool) -> None:
+        """The configuration that follows the collaborators (see :meth:`_call_inputs`)."""
+        self._io[FL.IO_WAKE_EVERY] = 1.0 if every else 0.0
+        cfg = self._cfg
+        cfg[FL.CFG_FDI_ON] = 1.0 if fdi_on else 0.0
+        cfg[FL.CFG_HOOK_SUM] = 1.0 if self.fdi is not None or self.excitation is not None else 0.0
 
     def _call_done(self) -> None:
         """After a compiled call, what cannot wait until Python reads the bookkeeping: the FDI's
@@ -222,8 +223,8 @@ class LoopShell:
 
     def _load_bookkeeping(self) -> None:
         """The bookkeeping the compiled calls continue (last valid tracker epochs, NIS sums) from
-        the Python maps into io, after Python replaced them (a checkpoint restored) or, in the
-        Python oracle of the tests, kept them itself."""
+        the Python maps into io, after Python replaced them (a checkpoint restored; the Python
+        oracle of the tests, which keeps them itself, before each compiled step)."""
         io, last, nis, lk = self._io, self.last_valid_st, self.nis_sum, self.nis_locked
         io[FL.IO_LAST_ST1], io[FL.IO_LAST_ST2] = last.get(1, -math.inf), last.get(2, -math.inf)
         io[FL.IO_NIS_SUM_PAR] = nis.get("parity", 0.0)
@@ -255,10 +256,10 @@ class LoopShell:
     def _event(self, code: int, arg: int = 0, t: float = 0.0) -> None:
         """Run :func:`radical_rt.engine.events.engine_event` ``code`` (EV_*; int ``arg``, time
         ``t`` [s]) on the engine's state."""
-        self._load_bookkeeping()
-        sig_t, _wt, _we = self._call_inputs(*self._fdi_inputs())
+        _bank, _wake, every, fdi_on = self._fdi_release_inputs()
+        self._set_collaborators(every, fdi_on)
         engine_event(code, arg, t, self._fb, self._ib, self._bb, self._lay, self._cfg,
-                     self._io, self._cnt, sig_t)
+                     self._io, self._cnt, self.timing_sigma())
         self._undrained = True
         self._call_done()
 

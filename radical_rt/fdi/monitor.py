@@ -190,12 +190,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
     def release_inputs(self, eng) -> tuple[HypothesisBank | None, float, bool, bool]:
         """What a compiled call of the engine needs from the FDI, in one call: (the bank it runs,
         :meth:`kernel_bank`; :meth:`wake_time`; :meth:`wake_on_tracker`; :meth:`enabled`)."""
-        if self.state != "alarm":  # the common case: no bank
-            wake = -math.inf if self._sum_seen else self._next_check
-            return None, wake, False, bool(self._p(eng, "enabled", True))
-        bank = self.kernel_bank()
-        return (bank, self.wake_time(), self.bank is not None and bank is None,
-                bool(self._p(eng, "enabled", True)))
+        return self.kernel_bank(), self.wake_time(), self.wake_on_tracker(), self.enabled(eng)
 
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker

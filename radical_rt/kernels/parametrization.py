@@ -25,15 +25,14 @@ def contract_from_internal(xp, n):
     Returns (xp_contract (5n+3,), J (5n+3, 5n+3)).
     """
     xp = np.ascontiguousarray(xp, dtype=float)
-    out, J = xp.copy(), np.eye(xp.size)
-    _contract_from_internal(xp, int(n), out, J)
-    return out, J
+    J = np.eye(xp.size)
+    return contract_values(xp, n, J), J
 
 
 def contract_values(xp, n, J_work):
-    """The contract parameters (5n+3,) of :func:`contract_from_internal` alone: xp (5n+3,) float64
-    internal; J_work (5n+3, 5n+3) a work array that only ever receives this conversion's
-    Jacobian (its entries outside the per-gyro blocks are not read)."""
+    """The contract parameters (5n+3,) of :func:`contract_from_internal`: xp (5n+3,) float64
+    internal; the per-gyro entries of the Jacobian are written into J_work (5n+3, 5n+3) (the
+    identity elsewhere is left as it is; nothing in J_work is read)."""
     out = xp.copy()
     _contract_from_internal(xp, int(n), out, J_work)
     return out

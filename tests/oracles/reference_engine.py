@@ -69,6 +69,12 @@ class ReferenceEngine(Engine):
     def set_parity_queue(self, items, rows: int = 0) -> None:
         self.queue = [(t, np.array(y, float), np.array(tt, float), nz) for t, y, tt, nz in items]
 
+    def _event(self, code: int, arg: int = 0, t: float = 0.0) -> None:
+        """The engine's compiled step, after the bookkeeping this oracle keeps in Python (last
+        tracker epochs, NIS sums) is put into the kernel's io."""
+        self._load_bookkeeping()
+        super()._event(code, arg, t)
+
     def update_mode(self, t: float) -> None:
         """Stale-tracker flags, convergence test on the UD variances, and the mode."""
         stale_bits = ((1, int(Flag.ST1_STALE)), (2, int(Flag.ST2_STALE)))
