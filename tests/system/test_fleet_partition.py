@@ -21,6 +21,7 @@ from tests.support.tcp_proxy import TcpProxy
 
 pytestmark = pytest.mark.zenoh
 VEHICLES = ["pa", "pb", "pc", "pd"]
+PACE = 1.5  # input bus time per wall-clock second
 
 
 def _make(name: str):
@@ -38,15 +39,22 @@ def test_partition_and_heal(archives):
     a = FleetWorker(ta, "fp", VEHICLES, _make, worker_id="w-a", checkpoint_every_s=0.5)
     b = FleetWorker(tb, "fp", VEHICLES, _make, worker_id="w-b", checkpoint_every_s=0.5)
     stop = threading.Event()
-    msgs = input_messages(archives["a120"])  # (about 30 s at this pace: longer than the test)
+    msgs = input_messages(archives["a120"])
+    sent = [0]
 
     def publish() -> None:
-        for topic, _, data in msgs:
+        """The 120 s archive paced on the wall clock at PACE x its bus time (80 s: longer than
+        the test's waits can add up to, 64.5 s, however slow the machine)."""
+        t0, ns0 = time.monotonic(), msgs[0][1]
+        for topic, ns, data in msgs:
+            ahead = t0 + (ns - ns0) * 1e-9 / PACE - time.monotonic()
+            if ahead > 0:
+                stop.wait(ahead)
             if stop.is_set():
                 return
             for v in VEHICLES:
                 client.put(f"radical/{v}/{topic}", data, block=True)
-            time.sleep(0.002)
+            sent[0] += 1
 
     def served() -> dict[str, list[str]]:
         out: dict[str, list[str]] = {}
@@ -76,12 +84,13 @@ def test_partition_and_heal(archives):
         time.sleep(1.0)
 
         proxy.restore()  # the link is back: b's vehicles return to it by handover
+        sent_at_restore = sent[0]
         wait_for(lambda: served() == {v: [want[v]] for v in VEHICLES}, 30, 0.1, "the shares again")
         back = [t for t in b.takeovers if t["vehicle"] in of_b and t["replica_worker"] == "w-a"]
         assert {t["vehicle"] for t in back} == set(of_b)
         assert all(t["source"] == "handover" for t in back)
         time.sleep(1.5)
-        assert th.is_alive()  # inputs flowed through it all
+        assert th.is_alive() and sent[0] > sent_at_restore  # inputs flowed through it all
         stop.set()
         th.join(10)
         assert watch.most == 1, watch.owners  # never two owners of a vehicle at once
