@@ -63,18 +63,20 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
             if i > 0:
                 _write(writer, sp.end_stream("cold" if cold else "warm"))
             sp.streams.source = str(inputs[i])
-            feed = sp.feed
+            chunk: list[tuple[str, bytes]] = []
             for topic, log_ns, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
                 if topic == "/truth/params":
                     truth = data
                     if writer and i == len(readers) - 1:
+                        _feed(sp, chunk, writer, bar if progress else None)  # (outputs first)
+                        chunk = []
                         writer.write_raw(topic, data, log_ns)
                     continue
-                out = feed(topic[1:], data)
-                if out and writer:
-                    _write(writer, out)
-                if progress:
-                    bar.update(1)
+                chunk.append((topic[1:], data))
+                if len(chunk) == CHUNK_MESSAGES:
+                    _feed(sp, chunk, writer, bar if progress else None)
+                    chunk = []
+            _feed(sp, chunk, writer, bar if progress else None)
         _write(writer, sp.end_stream(None))
     finally:
         bar.close()
@@ -89,6 +91,20 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
     if summary_path:
         Path(summary_path).write_text(json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+#: input messages handed to the stream processor at once (StreamProcessor.feed_many)
+CHUNK_MESSAGES = 256
+
+
+def _feed(sp: StreamProcessor, chunk: list[tuple[str, bytes]], writer: ArchiveWriter | None,
+          bar) -> None:
+    """Input messages (topic without slash, payload) through the stream; outputs written."""
+    out = sp.feed_many(chunk)
+    if out and writer:
+        _write(writer, out)
+    if bar is not None:
+        bar.update(len(chunk))
 
 
 def _write(writer: ArchiveWriter | None, outputs: list[tuple[str, dict]]) -> None:

@@ -133,8 +133,13 @@ class SiruClock:
     def taken(self, queue, m: int) -> None:
         """After a compiled intake that succeeded: its m samples are in the queue (a refused
         message changed nothing, and this is not called)."""
-        self._sig_cache = self._anom_cache = None
         queue.end += m
+        self.took(m)
+
+    def took(self, m: int) -> None:
+        """After a compiled intake changed the clock's state and released m samples (the queue's
+        owner has counted them)."""
+        self._sig_cache = self._anom_cache = None
         self._n_tags = m
 
     _tags = np.empty(0, np.int64)

@@ -52,13 +52,33 @@ class LoopShell:
         if fdi is not None and z > a:  # the kernel's first call copies a..z−1 to the history
             gbuf = fdi.gbuf
             gbuf.reserve(z - a, self.n_gyro)
-            g_f, g_i, g_b, _i0, g_end = gbuf.blocks()
+            g_end = gbuf.blocks()[4]
         else:
-            g_f, g_i, g_b, g_end = self._no_hist, self._no_hist_i, self._no_hist_b, -1
+            g_end = -1
+        self._calls(arrays, a, z, events.f, events.i, events.start, events.stop, g_end, predict)
+
+    def resume_release(self, arrays, k: int, z: int, ev_f, ev_i, e: int, n_ev: int, predict,
+                       reason: int, stage: int) -> None:
+        """The rest of a release whose first compiled call another kernel made (the stream's
+        block intake, radical_rt.stream.intake_block, with this shell's inputs): that call
+        returned (reason, k, e, stage); its bookkeeping after the call is done but
+        :meth:`_call_done`. Arguments as in :meth:`release` (ev_f, ev_i: the tracker queue's
+        rows, e..n_ev−1 still to come)."""
+        self._undrained = True
+        self._calls(arrays, k, z, ev_f, ev_i, e, n_ev, -1, predict, (reason, stage))
+
+    def _calls(self, arrays, a: int, z: int, ev_f, ev_i, e: int, n_ev: int, g_end: int, predict,
+               returned: tuple[int, int] | None = None) -> None:
+        """The compiled calls of a release from sample a and tracker row e (g_end ≥ 0: the first
+        call copies a..z−1 to the FDI's history from that row), with the window hook where a
+        call stops for it; ``returned``: (reason, stage) of a call already made up to (a, e)."""
+        fdi = self.fdi
+        if g_end >= 0:
+            g_f, g_i, g_b = fdi.gbuf.blocks()[:3]
+        else:
+            g_f, g_i, g_b = self._no_hist, self._no_hist_i, self._no_hist_b
         pred, q_end, clock_I, clock_F = predict or (self._no_pred, 0, self._no_clock_I,
                                                      self._no_clock_F)
-        ev_f, ev_i = events.f, events.i
-        n_ev = events.stop  # row numbers of the tracker queue: events.start..n_ev−1
         # the kernel appends the valid tracker samples to the FDI's history (room made per call:
         # the window hook may have cleared it)
         trk, trk_f, trk_i = (None, self._no_trk_f, self._no_trk_i) if fdi is None else (
@@ -66,7 +86,11 @@ class LoopShell:
         t, dt, dtheta, status, bridged, var_extra = arrays
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
         io, cnt, run = self._io, self._cnt, lp.run_release
-        k, e = a, events.start
+        k = a
+        if returned is not None:
+            reason, stage = returned
+            self._call_done()
+            e = self._after_call(reason, stage, e, ev_f)
         while k < z or e < n_ev:
             bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
             if bank is None:
@@ -90,16 +114,59 @@ class LoopShell:
             if bank is not None:
                 bank.kernel_done()
             if g_end >= 0:
-                gbuf.end += z - a
+                fdi.gbuf.end += z - a
                 g_end = -1
             self._call_done()
-            e = e_stop
-            if stage == 1:  # the hook after tracker event e
-                t_hook = float(ev_f[e, 0])
-                e += 1
-                self.on_window(t_hook)
-            elif reason == lp.R_ON_WINDOW:
-                self.on_window(self.t)
+            e = self._after_call(reason, stage, e_stop, ev_f)
+
+    def _after_call(self, reason: int, stage: int, e: int, ev_f) -> int:
+        """The window hook where a compiled call stopped for it (stage 1: after tracker row e,
+        at its epoch); returns the next tracker row."""
+        if stage == 1:  # the hook after tracker event e
+            t_hook = float(ev_f[e, 0])
+            e += 1
+            self.on_window(t_hook)
+        elif reason == lp.R_ON_WINDOW:
+            self.on_window(self.t)
+        return e
+
+    # ---------------------------------------------------------------- calls made by another kernel
+    def outside_calls(self, samples: int, trackers: int) -> tuple | None:
+        """What a kernel that calls :func:`radical_rt.engine.loop.run_release` itself (the
+        stream's block intake) needs for up to ``samples`` gyro samples and ``trackers`` tracker
+        samples released, with room made in the FDI's histories; None when those calls must be
+        this shell's (the FDI's bank runs, or its window hook has work after every tracker
+        sample). Sets the configuration that follows the collaborators (:meth:`_call_inputs`).
+        Returns (wake_fdi [s], R1, R2, fb, ib, bb, lay, cfg, io, cnt, the idle bank's four
+        arrays, g_f, g_i, g_b, g_end, trk_f, trk_i, trk_end, trk_seq); g_end, trk_end −1: no
+        FDI. :meth:`outside_done` takes the ends back."""
+        bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
+        if bank is not None or every:
+            return None
+        self._set_collaborators(every, fdi_on)
+        fdi = self.fdi
+        if fdi is None:
+            hist = (self._no_hist, self._no_hist_i, self._no_hist_b, -1, self._no_trk_f,
+                    self._no_trk_i, -1, 0)
+        else:
+            fdi.gbuf.reserve(samples, self.n_gyro)
+            g_f, g_i, g_b, _i0, g_end = fdi.gbuf.blocks()
+            trk_f, trk_i = fdi.trk.reserve(trackers)
+            hist = (g_f, g_i, g_b, g_end, trk_f, trk_i, fdi.trk.end, fdi.trk_seq)
+        return (wake_fdi, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
+                self._ib, self._bb, self._lay, self._cfg, self._io, self._cnt,
+                *self._no_bank) + hist
+
+    def outside_done(self, g_end: int, trk_end: int, trk_seq: int, called: bool) -> None:
+        """After a kernel's own calls (:meth:`outside_calls`): the FDI histories' new ends and
+        sequence number; ``called``: whether it made any (their counts are taken when read;
+        an attitude reset among them clears the excitation monitor, :meth:`_call_done`)."""
+        fdi = self.fdi
+        if fdi is not None:
+            fdi.gbuf.end, fdi.trk.end, fdi.trk_seq = g_end, trk_end, trk_seq
+        if called:
+            self._undrained = True
+            self._call_done()
 
     # stand-ins for the FDI history blocks of loop.run_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)

@@ -26,6 +26,7 @@ from radical_rt.clock.siru_clock import ClockConfig, SiruClock
 from radical_rt.contract.params import ParamTable
 from radical_rt.engine.filter import Engine
 from radical_rt.engine.gyro_queue import GyroQueue
+from radical_rt.stream.block_feed import BlockFeed
 from radical_rt.stream.input_guard import TimeJump
 from radical_rt.stream.outputs import StreamOutputs
 from radical_rt.stream.packets import InputError, decode_siru, decode_temp, decode_tracker, unpack
@@ -63,7 +64,7 @@ from radical_rt.stream.tracker_queue import (
 INPUT_TOPICS = ("siru", "st1", "st2", "temp")
 
 
-class StreamProcessor(StreamOutputs, StreamGuards):
+class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
     """Engine + clock + reorder buffer + output scheduling for one vehicle.
 
     The input sanity rules (time window, jumps, tracker conflicts, losses) and their settings
@@ -95,6 +96,7 @@ class StreamProcessor(StreamOutputs, StreamGuards):
         self._wire = SiruWire(engine.n_gyro)  # compiled decoding of plain siru messages
         self._pred = np.zeros(9)  # the release kernel's prediction for sample packets (now())
         self.streams = StreamLog()  # stream index (``stream`` of every output) and records
+        self._init_block()  # (radical_rt.stream.block_feed: many messages at once)
         self.begin_stream()
 
     # ---------------------------------------------------------------- input side

@@ -31,7 +31,7 @@ import msgpack
 import numba
 import numpy as np
 
-from radical_rt.apps.batch import make_processor, make_summary
+from radical_rt.apps.batch import CHUNK_MESSAGES, make_processor, make_summary
 from radical_rt.contract.params import ParamTable
 
 GOLDEN_DIR = Path(__file__).resolve().parent.parent / "golden"
@@ -56,10 +56,17 @@ def platform_id() -> dict[str, str]:
             "machine": platform.machine()}
 
 
+#: how run_streams feeds the processor: "many" — chunks of CHUNK_MESSAGES through feed_many, as
+#: ``radical process`` does; "one" — message by message through feed, as the node does
+#: (test_golden checks both against the same records)
+FEED = {"mode": "many"}
+
+
 def run_streams(streams: list[list[tuple[str, int, bytes]]], params: dict | None = None,
                 start: str = "warm") -> tuple[list[tuple[str, bytes]], Any]:
     """Feed the streams in order through one stream processor (``start`` at each boundary, as
-    ``radical process`` does between its inputs); returns ([(topic, msgpack bytes)], processor)."""
+    ``radical process`` does between its inputs; FEED says how); returns ([(topic, msgpack
+    bytes)], processor)."""
     table = ParamTable()
     table.set(params or {})
     sp = make_processor(table)
@@ -67,8 +74,13 @@ def run_streams(streams: list[list[tuple[str, int, bytes]]], params: dict | None
     for i, messages in enumerate(streams):
         if i > 0:
             out += [(t, msgpack.packb(m)) for t, m in sp.end_stream(start)]
-        for topic, _ns, data in messages:
-            out += [(t, msgpack.packb(m)) for t, m in sp.feed(topic, data)]
+        if FEED["mode"] == "one":
+            for topic, _ns, data in messages:
+                out += [(t, msgpack.packb(m)) for t, m in sp.feed(topic, data)]
+            continue
+        for c in range(0, len(messages), CHUNK_MESSAGES):
+            chunk = [(topic, data) for topic, _ns, data in messages[c:c + CHUNK_MESSAGES]]
+            out += [(t, msgpack.packb(m)) for t, m in sp.feed_many(chunk)]
     out += [(t, msgpack.packb(m)) for t, m in sp.end_stream(None)]
     return out, sp
 

@@ -16,11 +16,16 @@ from tests.support.golden_cases import CASES
 UPDATE = os.environ.get("RADICAL_GOLDEN_UPDATE") == "1"
 
 
+@pytest.mark.parametrize("feed", ["many", "one"])
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_golden_case(name):
+def test_golden_case(name, feed, monkeypatch):
+    """feed: "many" — chunks through StreamProcessor.feed_many (the compiled block intake, as
+    ``radical process``); "one" — message by message through feed (as the node): both must
+    reproduce the same record."""
+    monkeypatch.setitem(golden.FEED, "mode", feed)
     description, outputs, sp = golden.with_tmp(CASES[name])
     new = golden.record(name, description, outputs, sp)
-    if UPDATE:
+    if UPDATE and feed == "one":
         golden.save(new)
     old = golden.load(name)
     exact = old["platform"] == golden.platform_id()

@@ -1,0 +1,374 @@
+"""The stream's block intake: a run of plain input messages through the intakes, the release
+decisions and the engine's compiled release in one kernel call (issue #18, docs/engine.md §1.2).
+
+:func:`intake_block` takes the messages ``next``..n−1 of a chunk (payload bytes ``buf``, per
+message its topic code T_*, offset and size) and does for each, in order, what
+:meth:`radical_rt.stream.processor.StreamProcessor.feed` does for it, with the same kernels and the
+same arithmetic: a ``siru`` message through :func:`radical_rt.stream.siru_wire.siru_intake` (decoding,
+time check, clock, gyro queue) and then the release of everything the new watermark passed; a
+tracker message through :func:`radical_rt.stream.tracker_queue.tracker_intake` and, when its release
+test says so, the release. A release is :func:`radical_rt.stream.tracker_queue.release_plan` and
+one :func:`radical_rt.engine.loop.run_release` call with the inputs Python's shell gives it
+(:meth:`radical_rt.engine.shell.LoopShell.release`): σ of the time line from the clock's state
+(:func:`radical_rt.clock.clock_timing.tag_sigma`), the wake times of the stream's flags rule
+(:func:`stream_wake`, the rule of :meth:`radical_rt.stream.outputs.StreamOutputs.wake`), the FDI's
+gyro and tracker histories appended in place.
+
+It returns to Python (status B_*, with ``next`` the message concerned) wherever Python has work:
+
+* B_END: every message taken;
+* B_BAIL: message ``next`` is not taken (nothing changed): it is not plain, not an input topic,
+  too large, refused, or would need Python's rules (a tracker in conflict, the queues' growth);
+  the caller feeds it as usual;
+* B_SIRU: the ``siru`` message ``next`` is done (its sample-triggered packets are Python's; one
+  siru message a call, the room the caller made is for one);
+* B_SIRU_GAP: its samples are taken in, and its first bus time is an input gap: the caller notes
+  the gap, then releases as ``feed`` does;
+* B_TRK_TAIL: a tracker sample was taken in closer than the minimum interval to the tracker's
+  previous one (conflict evidence): the caller notes it, then releases when BI_CODE says so;
+* B_RESUME: a release stopped for the window hook (or counted a gyro gap, which the guards must
+  see first): the caller runs the hook and the rest of that release (BI_R*), then the message's
+  own tail;
+* B_STOP: tracker message ``next`` is done, and Python must look at the state before the next
+  one (a gyro gap was counted).
+
+The caller (:mod:`radical_rt.stream.block_feed`) makes room first (gyro queue, clock buffers, FDI
+histories) and reads the scalars back afterwards (BI_*, BF_* of
+:mod:`radical_rt.stream.stream_layout`). Python keeps every rule a message outside the common case
+needs; this kernel never decides anything ``feed`` would not.
+"""
+
+from __future__ import annotations
+
+import math
+
+from radical_rt._jit import kernel
+from radical_rt.clock.clock_layout import F_ANOM_UNTIL, F_TAU_NOW
+from radical_rt.clock.clock_timing import tag_sigma
+from radical_rt.contract.conventions import SIRU_TT_WRAP
+from radical_rt.contract.flags import Flag
+from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.engine.loop import R_DONE, run_release
+from radical_rt.engine.loop_layout import (
+    CNT_FLAGS,
+    CNT_GAPS,
+    CNT_TRK_ADDED,
+    IO_ATT_VALID,
+    IO_MODE,
+    IO_T,
+)
+from radical_rt.stream.packets import MAX_SIRU_BATCH
+from radical_rt.stream.siru_wire import WIRE_OK, siru_intake
+from radical_rt.stream.stream_layout import (
+    BF_INPUT_GAP,
+    BF_LAST_REJECT,
+    BF_LATENCY,
+    BF_MIN_INTERVAL,
+    BF_PREV,
+    BF_REJECT_HOLD,
+    BF_SLACK,
+    BF_T_IN,
+    BF_T_NOW,
+    BF_WAKE_E,
+    BF_WAKE_FDI,
+    BF_WAKE_T,
+    BI_CHUNK,
+    BI_CODE,
+    BI_CONFLICT,
+    BI_G_END,
+    BI_GQ_END,
+    BI_GQ_HEAD,
+    BI_GUARD_FLAGS,
+    BI_LAST_FLAGS,
+    BI_MAX_BRIDGE,
+    BI_MAX_PAYLOAD,
+    BI_N_GYRO,
+    BI_NEW_SAMPLE,
+    BI_NEXT,
+    BI_RE,
+    BI_RELEASED,
+    BI_RK,
+    BI_RN,
+    BI_ROWS,
+    BI_ROWS_OK,
+    BI_RPRED,
+    BI_RREASON,
+    BI_RSTAGE,
+    BI_RZ,
+    BI_SAMPLE_PACKETS,
+    BI_SIRU_LEFT,
+    BI_SIRU_M,
+    BI_STATUS,
+    BI_TOOK,
+    BI_TRK_END,
+    BI_TRK_SEQ,
+    BI_WINDOW,
+    SI_END,
+    SI_HEAD,
+    SS_LAST,
+    SS_LAST_SIRU,
+    SS_T_IN,
+    SS_T_MAX,
+)
+from radical_rt.stream.tracker_queue import IN_RELEASE, PLAN_GO, release_plan, tracker_intake
+
+#: message topic codes (T_OTHER: anything else, e.g. temp: always Python's)
+T_SIRU, T_ST1, T_ST2, T_OTHER = 0, 1, 2, 3
+#: why intake_block returned (module docstring)
+B_END, B_BAIL, B_SIRU, B_SIRU_GAP, B_TRK_TAIL, B_RESUME, B_STOP = range(7)
+
+_CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
+# positions in the engine's tuple of views (radical_rt.engine.engine_layout)
+_Q, _OMEGA, _EXCLUDED = E_INDEX["q"], E_INDEX["omega"], E_INDEX["excluded"]
+_XP, _A, _GP = E_INDEX["xp"], E_INDEX["A"], E_INDEX["Gp"]
+
+
+@kernel
+def stream_flags(bi, bf, ss, io, cnt, clock_F):
+    """The stream's flags (:attr:`radical_rt.stream.outputs.StreamOutputs.flags`): the engine's,
+    CLOCK_ANOMALY from the clock's state, the INPUT_REJECTED hold, the guards' BI_GUARD_FLAGS
+    (constant while no guard is live, which the caller makes sure of)."""
+    flags = cnt[CNT_FLAGS]
+    if clock_F[F_TAU_NOW] < clock_F[F_ANOM_UNTIL]:
+        flags |= _CLOCK_ANOMALY
+    last_reject = bf[BF_LAST_REJECT]
+    if io[IO_T] - last_reject <= bf[BF_REJECT_HOLD] or ss[SS_T_MAX] == last_reject:
+        flags |= _INPUT_REJECTED
+    return flags | bi[BI_GUARD_FLAGS]
+
+
+@kernel
+def stream_wake(bi, bf, ss, io, cnt, clock_F):
+    """The wake times (event time, engine time [s]) of the stream's hooks for a compiled call:
+    :meth:`radical_rt.stream.outputs.StreamOutputs.wake` with the FDI's wake time folded in, as
+    :meth:`radical_rt.engine.shell.LoopShell._call_inputs` gives them: −inf for both when the
+    stream's flags (:func:`stream_flags`) differ from the last fault message's."""
+    last = bi[BI_LAST_FLAGS]
+    if stream_flags(bi, bf, ss, io, cnt, clock_F) != last:
+        return -math.inf, -math.inf
+    last_reject = bf[BF_LAST_REJECT]
+    wake_e = bf[BF_WAKE_E]
+    if last & _INPUT_REJECTED and ss[SS_T_MAX] != last_reject:
+        wake_e = min(wake_e, last_reject + bf[BF_REJECT_HOLD] - 1e-6)
+    return bf[BF_WAKE_T], min(wake_e, bf[BF_WAKE_FDI])
+
+
+@kernel
+def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i, R1,
+             R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay,
+             trk_f, trk_i):
+    """The stream's release for the watermark t_max − latency − slack (StreamProcessor._release
+    and LoopShell.release's first call). Returns False when that call stopped before the release
+    was complete (BI_R* say where; the caller returns B_RESUME)."""
+    pred[0] = 0.0  # no prediction from this release (yet)
+    wm = ss[SS_T_MAX] - bf[BF_LATENCY] - bf[BF_SLACK]
+    a = bi[BI_GQ_HEAD]
+    plan, e1, z = release_plan(ss, si, ev_f, q_t, a, bi[BI_GQ_END], wm, acc_i[0], bi[BI_WINDOW],
+                               defer)
+    if plan != PLAN_GO:
+        return True
+    bi[BI_GQ_HEAD] = z
+    e = si[SI_HEAD]
+    si[SI_HEAD] = e1
+    ask = bi[BI_SAMPLE_PACKETS] != 0 and not defer
+    if ask:
+        pred[0], pred[1] = 1.0, bf[BF_T_NOW]
+    g_end = bi[BI_G_END] if z > a else -1
+    sig = tag_sigma(cI, cF)
+    sig_t = sig if math.isfinite(sig) and sig > 0.0 else 0.0
+    wake_t, wake_e = stream_wake(bi, bf, ss, io, cnt, cF)
+    trk_end = bi[BI_TRK_END]
+    trk_seq = bi[BI_TRK_SEQ] if trk_end >= 0 else 0
+    q_end = bi[BI_GQ_END] if ask else 0
+    gaps0 = cnt[CNT_GAPS]
+    reason, k, e_stop, stage = run_release(
+        q_t, q_dt, q_dth, q_st, q_br, q_ve, a, z, ev_f, ev_i, e, e1, R1, R2, fb, ib, bb, lay, cfg,
+        io, cnt, g_f, g_i, g_b, g_end, pred, q_end, cI, cF, bfb, bib, bbb, blay, sig_t, wake_t,
+        wake_e, trk_f, trk_i, trk_end, trk_seq)
+    bi[BI_RELEASED] = 1
+    if g_end >= 0:
+        bi[BI_G_END] += z - a
+    added = cnt[CNT_TRK_ADDED]
+    if added:
+        cnt[CNT_TRK_ADDED] = 0
+        bi[BI_TRK_END] += added
+        bi[BI_TRK_SEQ] += added
+    if reason == R_DONE and cnt[CNT_GAPS] == gaps0:
+        return True
+    bi[BI_RK], bi[BI_RZ], bi[BI_RE], bi[BI_RN] = k, z, e_stop, e1
+    bi[BI_RSTAGE], bi[BI_RREASON], bi[BI_RPRED] = stage, reason, 1 if ask else 0
+    return False
+
+
+@kernel
+def _due(sp_f, sp_i, s, t):
+    """PacketSpec.due of sample-triggered packet s at sample time t [s]: sp_f (S, 2) next time
+    [s], period [s] (0: none); sp_i (S, 2) decimation (0: none), windows counted (in/out)."""
+    dec = sp_i[s, 0]
+    if dec > 0:
+        sp_i[s, 1] += 1
+        if sp_i[s, 1] >= dec:
+            sp_i[s, 1] = 0
+            return True
+        return False
+    if t >= sp_f[s, 0]:
+        sp_f[s, 0] = t + 0.95 * sp_f[s, 1]
+        return True
+    return False
+
+
+@kernel
+def _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
+                 q_st, fb, ib, bb, lay):
+    """The sample-triggered packets due at the newest sample (StreamOutputs._sample_outputs): a
+    row each (BI_ROWS of them so far) of rows_f (R, 8): t [s], q_body_from_inertial (4,),
+    omega_body (3,) [rad/s] predicted to the newest sample (the release's prediction, else
+    StreamOutputs.now's); rows_i (R, 3): the packet's index, the stream's flags, the mode code."""
+    t_now = bf[BF_T_NOW]
+    first = -1
+    for s in range(sp_f.shape[0]):
+        if not _due(sp_f, sp_i, s, t_now):
+            continue
+        r = bi[BI_ROWS]
+        bi[BI_ROWS] = r + 1
+        rows_i[r, 0] = s
+        if first >= 0:  # (one prediction for the packets of one sample)
+            rows_i[r, 1], rows_i[r, 2] = rows_i[first, 1], rows_i[first, 2]
+            for c in range(8):
+                rows_f[r, c] = rows_f[first, c]
+            continue
+        first = r
+        rows_i[r, 1] = stream_flags(bi, bf, ss, io, cnt, cF)
+        rows_i[r, 2] = int(io[IO_MODE])
+        row = rows_f[r]
+        if pred[0] == 2.0:
+            for c in range(8):
+                row[c] = pred[1 + c]
+            continue
+        E = unpack(fb, ib, bb, lay)
+        q, omega = row[1:5], row[5:8]
+        for c in range(4):
+            q[c] = E[_Q][c]
+        for c in range(3):
+            omega[c] = E[_OMEGA][c]
+        row[0] = io[IO_T]
+        if io[IO_ATT_VALID] != 0.0:
+            row[0] = predict_pending(q_dth, q_dt, q_st, bi[BI_GQ_HEAD], bi[BI_GQ_END], t_now, cI,
+                                     cF, E[_EXCLUDED], E[_XP], E[_A], E[_GP], q, omega)
+
+
+@kernel
+def _room(siru, bi, si, w_tbus, q_t, g_f, trk_f):
+    """Whether the room the caller made holds what the next message can add: a siru message's
+    reads (at most the decoder's capacity, each with its bridged reads) in the gyro queue, the
+    samples and tracker rows a release can copy to the FDI's histories."""
+    new = w_tbus.shape[0] * (bi[BI_MAX_BRIDGE] + 1) if siru else 0
+    pending = bi[BI_GQ_END] - bi[BI_GQ_HEAD] + new
+    if bi[BI_GQ_END] + new > q_t.shape[0]:
+        return False
+    if bi[BI_G_END] >= 0 and bi[BI_G_END] + pending > g_f.shape[0]:
+        return False
+    rows = si[SI_END] - si[SI_HEAD] + (0 if siru else 1)
+    return not (bi[BI_TRK_END] >= 0 and bi[BI_TRK_END] + rows > trk_f.shape[0])
+
+
+@kernel
+def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss, si, ev_f, ev_i,
+                 q_work, last_q, cI, cF, OF, OI, tags, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i,
+                 R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, bfb, bib, bbb, blay,
+                 trk_f, trk_i, sp_f, sp_i, rows_f, rows_i):
+    """Messages bi[BI_NEXT]..n−1 (buf uint8: their payloads back to back; topic (≥ n,) T_*,
+    off, size (≥ n,) int64: each payload's place in buf) through the stream (module docstring),
+    until one needs Python. w_*: the siru decoder's column buffers; ss, si, ev_f, ev_i, q_work:
+    the tracker queue's; last_q (3, 4): the quaternion of the last sample taken in per tracker
+    (row j, with BI_TOOK[j] = 1); cI, cF, OF, OI, tags: the clock's state and buffers; q_*: the
+    gyro queue's arrays (BI_GQ_HEAD, BI_GQ_END); acc_i: the engine's window counters; the rest:
+    run_release's (g_*: the FDI's gyro history, BI_G_END; trk_*: its tracker history, BI_TRK_END,
+    BI_TRK_SEQ; pred: the sample packets' prediction). With BI_ROWS_OK, up to BI_SIRU_LEFT siru
+    messages, each one's sample-triggered packets as rows (:func:`_sample_rows`; sp_f, sp_i:
+    their schedule); else one. Sets BI_STATUS and BI_NEXT."""
+    bi[BI_RELEASED] = 0
+    bi[BI_ROWS] = 0
+    bi[BI_SIRU_M] = -1
+    for j in range(3):
+        bi[BI_TOOK + j] = 0
+    gaps0 = cnt[CNT_GAPS]
+    i = bi[BI_NEXT]
+    status = B_END
+    while i < n:
+        code = topic[i]
+        if code == T_OTHER or size[i] > bi[BI_MAX_PAYLOAD] or (code != T_SIRU
+                                                               and bi[BI_CONFLICT + code] != 0):
+            status = B_BAIL
+            break
+        if not _room(code == T_SIRU, bi, si, w_tbus, q_t, g_f, trk_f):
+            status = B_BAIL
+            break
+        p = buf[off[i]:off[i] + size[i]]
+        done = True
+        if code == T_SIRU:
+            prev = ss[SS_LAST_SIRU]
+            wire, _k, m = siru_intake(p, bi[BI_N_GYRO], w_tbus, w_tt, w_dth, w_st, MAX_SIRU_BATCH,
+                                      SIRU_TT_WRAP, ss, SS_LAST_SIRU, SS_T_MAX, cI, cF,
+                                      bi[BI_CHUNK], OF, OI, bi[BI_GQ_END], q_t, q_dt, q_dth, q_st,
+                                      q_br, q_ve, tags)
+            if wire != WIRE_OK:
+                status = B_BAIL
+                break
+            bi[BI_GQ_END] += m
+            bi[BI_SIRU_M] = m
+            bi[BI_NEW_SAMPLE] = 1 if m > 0 else 0
+            if m > 0:
+                bf[BF_T_NOW] = q_t[bi[BI_GQ_END] - 1]
+            t0 = w_tbus[0]
+            if t0 - prev > bf[BF_INPUT_GAP] and prev > -math.inf:
+                bf[BF_T_IN], bf[BF_PREV] = t0, prev
+                status = B_SIRU_GAP
+                break
+            done = _release(False, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
+                            acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI,
+                            cF, bfb, bib, bbb, blay, trk_f, trk_i)
+            if not done:
+                status = B_RESUME
+                break
+            if bi[BI_ROWS_OK] == 0:
+                status = B_SIRU  # its sample-triggered packets are Python's
+                break
+            if m > 0:
+                _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
+                             q_dth, q_dt, q_st, fb, ib, bb, lay)
+            bi[BI_SIRU_LEFT] -= 1
+            if bi[BI_SIRU_LEFT] == 0:
+                status = B_SIRU  # (the room the caller made is for so many)
+                break
+        else:
+            j = code
+            prev = ss[SS_LAST + j]
+            r = tracker_intake(p, j, bf[BF_LATENCY], bf[BF_SLACK], ss, si, ev_f, ev_i, q_t,
+                               bi[BI_GQ_HEAD], bi[BI_GQ_END], acc_i[0], bi[BI_WINDOW], q_work)
+            if r < 0:
+                status = B_BAIL
+                break
+            for c in range(4):
+                last_q[j, c] = q_work[c]
+            bi[BI_TOOK + j] = 1
+            bi[BI_CODE] = r
+            t_in = ss[SS_T_IN]
+            if abs(t_in - prev) < bf[BF_MIN_INTERVAL]:
+                bf[BF_T_IN], bf[BF_PREV] = t_in, prev
+                status = B_TRK_TAIL
+                break
+            if r == IN_RELEASE:
+                done = _release(True, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br,
+                                q_ve, acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b,
+                                pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i)
+                if not done:
+                    status = B_RESUME
+                    break
+        if cnt[CNT_GAPS] != gaps0:
+            status = B_STOP
+            break
+        i += 1
+    bi[BI_NEXT] = i
+    bi[BI_STATUS] = status
