@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
 from radical_rt.clock.siru_clock import ClockConfig, SiruClock
@@ -63,20 +64,10 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
             if i > 0:
                 _write(writer, sp.end_stream("cold" if cold else "warm"))
             sp.streams.source = str(inputs[i])
-            chunk: list[tuple[str, bytes]] = []
-            for topic, log_ns, data in reader.iter_raw(topics=[*INPUTS, "/truth/params"]):
-                if topic == "/truth/params":
-                    truth = data
-                    if writer and i == len(readers) - 1:
-                        _feed(sp, chunk, writer, bar if progress else None)  # (outputs first)
-                        chunk = []
-                        writer.write_raw(topic, data, log_ns)
-                    continue
-                chunk.append((topic[1:], data))
-                if len(chunk) == CHUNK_MESSAGES:
-                    _feed(sp, chunk, writer, bar if progress else None)
-                    chunk = []
-            _feed(sp, chunk, writer, bar if progress else None)
+            for blk in reader.iter_blocks([*INPUTS, "/truth/params"]):
+                _feed_block(sp, blk, writer, bar if progress else None,
+                            keep_truth=i == len(readers) - 1)
+                truth = _truth(blk, truth)
         _write(writer, sp.end_stream(None))
     finally:
         bar.close()
@@ -93,18 +84,36 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
     return summary
 
 
-#: input messages handed to the stream processor at once (StreamProcessor.feed_many)
-CHUNK_MESSAGES = 256
-
-
-def _feed(sp: StreamProcessor, chunk: list[tuple[str, bytes]], writer: ArchiveWriter | None,
-          bar) -> None:
-    """Input messages (topic without slash, payload) through the stream; outputs written."""
-    out = sp.feed_many(chunk)
-    if out and writer:
-        _write(writer, out)
+def _feed_block(sp: StreamProcessor, blk, writer: ArchiveWriter | None, bar, keep_truth: bool
+                ) -> None:
+    """An archive block (radical_rt.io.chunk_records.Block) through the stream; outputs
+    written; a /truth/params message copied at its place (keep_truth: of the last input)."""
+    names = [t[1:] for t in blk.names]  # (topics without the leading slash)
+    n = len(blk)
+    cuts = []
+    if "truth/params" in names:
+        cuts = [int(i) for i in np.flatnonzero(blk.tidx == names.index("truth/params"))]
+    start = 0
+    for p in [*cuts, n]:
+        if p > start:
+            out = sp.feed_arrays(blk.buf, names, blk.tidx[start:p], blk.off[start:p],
+                                 blk.size[start:p])
+            if out and writer:
+                _write(writer, out)
+        if p < n and writer and keep_truth:  # (after the outputs of what came before it)
+            writer.write_raw("/truth/params", blk.payload(p), int(blk.log_ns[p]))
+        start = p + 1
     if bar is not None:
-        bar.update(len(chunk))
+        bar.update(n)
+
+
+def _truth(blk, truth: bytes | None) -> bytes | None:
+    """The last /truth/params payload of the block (else ``truth``)."""
+    if "/truth/params" in blk.names:
+        hits = np.flatnonzero(blk.tidx == blk.names.index("/truth/params"))
+        if len(hits):
+            return blk.payload(int(hits[-1]))
+    return truth
 
 
 def _write(writer: ArchiveWriter | None, outputs: list[tuple[str, dict]]) -> None:

@@ -57,21 +57,26 @@ class LoopShell:
             g_end = -1
         self._calls(arrays, a, z, events.f, events.i, events.start, events.stop, g_end, predict)
 
-    def resume_release(self, arrays, k: int, z: int, ev_f, ev_i, e: int, n_ev: int, predict,
-                       reason: int, stage: int) -> None:
-        """The rest of a release whose first compiled call another kernel made (the stream's
-        block intake, radical_rt.stream.intake_block, with this shell's inputs): that call
-        returned (reason, k, e, stage); its bookkeeping after the call is done but
-        :meth:`_call_done`. Arguments as in :meth:`release` (ev_f, ev_i: the tracker queue's
-        rows, e..n_ev−1 still to come)."""
+    def hook_after(self, reason: int, stage: int, e: int, ev_f) -> int:
+        """After a compiled call another kernel made for a release (the stream's block intake,
+        radical_rt.stream.intake_block, with this shell's inputs) returned (reason, ·, e, stage):
+        the bookkeeping after a call (:meth:`_call_done`) and the window hook where it stopped for
+        it (ev_f: the tracker queue's rows). Returns the next tracker row of the release."""
         self._undrained = True
-        self._calls(arrays, k, z, ev_f, ev_i, e, n_ev, -1, predict, (reason, stage))
+        self._call_done()
+        return self._after_call(reason, stage, e, ev_f)
 
-    def _calls(self, arrays, a: int, z: int, ev_f, ev_i, e: int, n_ev: int, g_end: int, predict,
-               returned: tuple[int, int] | None = None) -> None:
+    def continue_release(self, arrays, k: int, z: int, ev_f, ev_i, e: int, n_ev: int,
+                         predict) -> None:
+        """The rest of such a release (after :meth:`hook_after`): gyro samples k..z−1, tracker
+        rows e..n_ev−1, arguments as in :meth:`release`."""
+        self._calls(arrays, k, z, ev_f, ev_i, e, n_ev, -1, predict)
+
+    def _calls(self, arrays, a: int, z: int, ev_f, ev_i, e: int, n_ev: int, g_end: int,
+               predict) -> None:
         """The compiled calls of a release from sample a and tracker row e (g_end ≥ 0: the first
         call copies a..z−1 to the FDI's history from that row), with the window hook where a
-        call stops for it; ``returned``: (reason, stage) of a call already made up to (a, e)."""
+        call stops for it."""
         fdi = self.fdi
         if g_end >= 0:
             g_f, g_i, g_b = fdi.gbuf.blocks()[:3]
@@ -87,10 +92,6 @@ class LoopShell:
         R1, R2 = self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom
         io, cnt, run = self._io, self._cnt, lp.run_release
         k = a
-        if returned is not None:
-            reason, stage = returned
-            self._call_done()
-            e = self._after_call(reason, stage, e, ev_f)
         while k < z or e < n_ev:
             bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
             if bank is None:

@@ -62,30 +62,66 @@ class BlockFeed:
             for topic, payload in messages:
                 out += self.feed(topic, payload)
             return out
-        topics = np.fromiter((_CODE.get(t, T_OTHER) for t, _p in messages), np.int64, n)
+        names = sorted({t for t, _p in messages})
+        index = {t: k for k, t in enumerate(names)}
+        tidx = np.fromiter((index[t] for t, _p in messages), np.int64, n)
         size = np.fromiter((len(p) for _t, p in messages), np.int64, n)
         off = np.zeros(n, np.int64)
         np.cumsum(size[:-1], out=off[1:])
         buf = np.frombuffer(b"".join(p for _t, p in messages), np.uint8)
-        out = []
-        i = 0
+        return self.feed_arrays(buf, names, tidx, off, size)
+
+    def feed_arrays(self, buf: np.ndarray, names: list[str], tidx: np.ndarray, off: np.ndarray,
+                    size: np.ndarray) -> list[tuple[str, dict[str, Any]]]:
+        """:meth:`feed_many` of messages given as arrays: message i is topic names[tidx[i]]
+        (without the leading slash) with payload buf[off[i]:off[i] + size[i]] (buf uint8, e.g.
+        a decompressed MCAP chunk, radical_rt.io.archive.ArchiveReader.iter_blocks)."""
+        n = len(tidx)
+        topics = np.array([_CODE.get(t, T_OTHER) for t in names], np.int64)[tidx]
+        out: list = []
+        i, resume = 0, False
         while i < n:
-            if not self._block_ready() or not self._block_call(buf, topics, off, size, n, i):
+            if resume:  # message i's release stopped for the window hook, which has run
+                resume = False
+                if not (self._block_ready() and self._block_call(buf, topics, off, size, n, i,
+                                                                 True)):
+                    self._continue_release()
+                    self._block_tail(B_RESUME, int(topics[i]))
+                    i += 1
+                    continue
+            elif not self._block_ready() or not self._block_call(buf, topics, off, size, n, i):
                 out += self.take_outputs()
-                out += self.feed(*messages[i])
+                out += self.feed(names[tidx[i]], buf[off[i]:off[i] + size[i]].tobytes())
                 i += 1
                 continue
             bi = self._bi
             status, i = int(bi[SL.BI_STATUS]), int(bi[SL.BI_NEXT])
             if status == B_END:
                 break
+            if status == B_RESUME:
+                v = bi.tolist()
+                bi[SL.BI_RE] = self.engine.hook_after(v[SL.BI_RREASON], v[SL.BI_RSTAGE],
+                                                      v[SL.BI_RE], self.tracker_q.ev_f)
+                resume = True
+                continue
             if status == B_BAIL:
                 out += self.take_outputs()
-                out += self.feed(*messages[i])
+                out += self.feed(names[tidx[i]], buf[off[i]:off[i] + size[i]].tobytes())
             else:
                 self._block_tail(status, int(topics[i]))
             i += 1
         return out + self.take_outputs()
+
+    def _continue_release(self) -> None:
+        """The rest of the release the block left at BI_R* (after its window hook), by the
+        engine's shell (the block cannot take it: an FDI bank started, a guard went live)."""
+        v = self._bi.tolist()
+        predict = None
+        if v[SL.BI_RPRED]:
+            predict = (self._pred, self.gyro_q.end) + self.clock.state_arrays()
+        self.engine.continue_release(self.gyro_q.arrays(), v[SL.BI_RK], v[SL.BI_RZ],
+                                     self.tracker_q.ev_f, self.tracker_q.ev_i, v[SL.BI_RE],
+                                     v[SL.BI_RN], predict)
 
     # ---------------------------------------------------------------- one call
     def _block_ready(self) -> bool:
@@ -96,16 +132,22 @@ class BlockFeed:
                 and not self._jumps.held and not self._guard_live
                 and e.gyro_gaps() == self._gyro_gaps_seen)
 
-    def _block_call(self, buf, topics, off, size, n: int, i: int) -> bool:
-        """Room made, the controls set, one :func:`intake_block` call from message i, the state
-        read back. False (nothing done): the engine's shell must make the calls (FDI bank)."""
+    def _block_call(self, buf, topics, off, size, n: int, i: int, resume: bool = False) -> bool:
+        """Room made, the controls set, one :func:`intake_block` call from message i (resume:
+        first the rest of its release, BI_R*), the state read back. False (nothing done): the
+        engine's shell must make the calls (FDI bank)."""
         gq, tq, e, clock = self.gyro_q, self.tracker_q, self.engine, self.clock
         cap = self._wire.capacity
-        I, F, chunk, OF, OI, tags = clock.prepare(cap, gq)
         sp_f, sp_i, rows_f, rows_i, k_siru = self._block_rows()
         new = k_siru * cap * (int(clock.config.max_bridge) + 1)  # samples k_siru messages can add
-        gq.reserve(new)
-        calls = e.outside_calls(len(gq) + new, len(tq) + 3 * k_siru)
+        rows = len(tq) + 3 * k_siru
+        if resume:  # (a release in flight holds rows of the queue: nothing may move them; the
+            I, F, chunk, OF, OI, tags = clock.prepare(0, gq)  # kernel checks the room it needs)
+            rows += int(self._bi[SL.BI_RN] - self._bi[SL.BI_RE])
+        else:
+            I, F, chunk, OF, OI, tags = clock.prepare(cap, gq)
+            gq.reserve(new)
+        calls = e.outside_calls(len(gq) + new, rows)
         if calls is None:
             return False
         (wake_fdi, R1, R2, fb, ib, bb, lay, cfg, io, cnt, bfb, bib, bbb, blay, g_f, g_i, g_b,
@@ -114,6 +156,7 @@ class BlockFeed:
         bi[SL.BI_NEXT], bi[SL.BI_GQ_HEAD], bi[SL.BI_GQ_END] = i, gq.head, gq.end
         bi[SL.BI_G_END], bi[SL.BI_TRK_END], bi[SL.BI_TRK_SEQ] = g_end, trk_end, trk_seq
         bi[SL.BI_SIRU_LEFT], bi[SL.BI_ROWS_OK] = k_siru, k_siru > 1
+        bi[SL.BI_RESUME] = resume
         w = self._wire
         intake_block(buf, topics, off, size, n, bi, bf, w.t_bus, w.tt, w.dtheta, w.status,
                      tq.ss, tq.si, tq.ev_f, tq.ev_i, tq.q_work, self._block_q, I, F, OF, OI,
@@ -199,18 +242,10 @@ class BlockFeed:
     # ---------------------------------------------------------------- after a call
     def _block_tail(self, status: int, code: int) -> None:
         """The rest of message BI_NEXT after the block stopped there with ``status`` (not
-        B_END, B_BAIL; code: the message's T_*), as :meth:`feed` would do it."""
+        B_END, B_BAIL; B_RESUME: after the rest of its release; code: the message's T_*), as
+        :meth:`feed` would do it."""
         bi, bf = self._bi, self._bf
-        if status == B_RESUME:
-            v = bi.tolist()
-            predict = None
-            if v[SL.BI_RPRED]:
-                predict = (self._pred, self.gyro_q.end) + self.clock.state_arrays()
-            self.engine.resume_release(
-                self.gyro_q.arrays(), v[SL.BI_RK], v[SL.BI_RZ], self.tracker_q.ev_f,
-                self.tracker_q.ev_i, v[SL.BI_RE], v[SL.BI_RN], predict, v[SL.BI_RREASON],
-                v[SL.BI_RSTAGE])
-        elif status == B_SIRU_GAP:
+        if status == B_SIRU_GAP:
             self._note_input_gap(float(bf[SL.BF_T_IN]) - float(bf[SL.BF_PREV]))
             self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s)
         elif status == B_TRK_TAIL:

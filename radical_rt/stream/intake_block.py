@@ -88,6 +88,7 @@ from radical_rt.stream.stream_layout import (
     BI_NEXT,
     BI_RE,
     BI_RELEASED,
+    BI_RESUME,
     BI_RK,
     BI_RN,
     BI_ROWS,
@@ -175,6 +176,20 @@ def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_
     if ask:
         pred[0], pred[1] = 1.0, bf[BF_T_NOW]
     g_end = bi[BI_G_END] if z > a else -1
+    return _call(a, z, e, e1, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br,
+                 q_ve, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb,
+                 bib, bbb, blay, trk_f, trk_i)
+
+
+@kernel
+def _call(k, z, e, n_ev, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
+          R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay,
+          trk_f, trk_i):
+    """One run_release call of a release (gyro samples k..z−1, tracker rows e..n_ev−1; g_end ≥ 0:
+    copy the samples to the FDI's history from that row first; ask: the sample packets'
+    prediction) with the shell's inputs (LoopShell._calls) and its bookkeeping after the call.
+    Returns False when the call stopped before the release was complete (BI_R* say where; the
+    caller returns B_RESUME), or counted a gyro gap (the guards must see it first)."""
     sig = tag_sigma(cI, cF)
     sig_t = sig if math.isfinite(sig) and sig > 0.0 else 0.0
     wake_t, wake_e = stream_wake(bi, bf, ss, io, cnt, cF)
@@ -182,13 +197,13 @@ def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_
     trk_seq = bi[BI_TRK_SEQ] if trk_end >= 0 else 0
     q_end = bi[BI_GQ_END] if ask else 0
     gaps0 = cnt[CNT_GAPS]
-    reason, k, e_stop, stage = run_release(
-        q_t, q_dt, q_dth, q_st, q_br, q_ve, a, z, ev_f, ev_i, e, e1, R1, R2, fb, ib, bb, lay, cfg,
-        io, cnt, g_f, g_i, g_b, g_end, pred, q_end, cI, cF, bfb, bib, bbb, blay, sig_t, wake_t,
-        wake_e, trk_f, trk_i, trk_end, trk_seq)
+    reason, k_stop, e_stop, stage = run_release(
+        q_t, q_dt, q_dth, q_st, q_br, q_ve, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb, ib, bb, lay,
+        cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end, cI, cF, bfb, bib, bbb, blay, sig_t,
+        wake_t, wake_e, trk_f, trk_i, trk_end, trk_seq)
     bi[BI_RELEASED] = 1
     if g_end >= 0:
-        bi[BI_G_END] += z - a
+        bi[BI_G_END] += z - k
     added = cnt[CNT_TRK_ADDED]
     if added:
         cnt[CNT_TRK_ADDED] = 0
@@ -196,7 +211,7 @@ def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_
         bi[BI_TRK_SEQ] += added
     if reason == R_DONE and cnt[CNT_GAPS] == gaps0:
         return True
-    bi[BI_RK], bi[BI_RZ], bi[BI_RE], bi[BI_RN] = k, z, e_stop, e1
+    bi[BI_RK], bi[BI_RZ], bi[BI_RE], bi[BI_RN] = k_stop, z, e_stop, n_ev
     bi[BI_RSTAGE], bi[BI_RREASON], bi[BI_RPRED] = stage, reason, 1 if ask else 0
     return False
 
@@ -259,6 +274,21 @@ def _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, 
 
 
 @kernel
+def _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt, q_st,
+               fb, ib, bb, lay):
+    """After a siru message's release: its sample-triggered packets (rows, or B_SIRU: Python's),
+    and B_SIRU when the call has taken as many siru messages as the caller made room for;
+    else B_END (go on)."""
+    if bi[BI_ROWS_OK] == 0:
+        return B_SIRU  # its sample-triggered packets are Python's
+    if bi[BI_NEW_SAMPLE] != 0:
+        _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
+                     q_st, fb, ib, bb, lay)
+    bi[BI_SIRU_LEFT] -= 1
+    return B_SIRU if bi[BI_SIRU_LEFT] == 0 else B_END  # (the room made is for so many)
+
+
+@kernel
 def _room(siru, bi, si, w_tbus, q_t, g_f, trk_f):
     """Whether the room the caller made holds what the next message can add: a siru message's
     reads (at most the decoder's capacity, each with its bridged reads) in the gyro queue, the
@@ -296,7 +326,19 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     gaps0 = cnt[CNT_GAPS]
     i = bi[BI_NEXT]
     status = B_END
-    while i < n:
+    if bi[BI_RESUME] != 0:  # the rest of message i's release after its window hook (Python's)
+        bi[BI_RESUME] = 0
+        if not _call(bi[BI_RK], bi[BI_RZ], bi[BI_RE], bi[BI_RN], -1, bi[BI_RPRED] != 0, bi, bf,
+                     ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve, R1, R2, fb, ib, bb, lay,
+                     cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i):
+            bi[BI_STATUS] = B_RESUME
+            return
+        if topic[i] == T_SIRU:
+            status = _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
+                                q_dth, q_dt, q_st, fb, ib, bb, lay)
+        if status == B_END:
+            i += 1
+    while i < n and status == B_END:
         code = topic[i]
         if code == T_OTHER or size[i] > bi[BI_MAX_PAYLOAD] or (code != T_SIRU
                                                                and bi[BI_CONFLICT + code] != 0):
@@ -332,15 +374,9 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             if not done:
                 status = B_RESUME
                 break
-            if bi[BI_ROWS_OK] == 0:
-                status = B_SIRU  # its sample-triggered packets are Python's
-                break
-            if m > 0:
-                _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
-                             q_dth, q_dt, q_st, fb, ib, bb, lay)
-            bi[BI_SIRU_LEFT] -= 1
-            if bi[BI_SIRU_LEFT] == 0:
-                status = B_SIRU  # (the room the caller made is for so many)
+            status = _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
+                                q_dth, q_dt, q_st, fb, ib, bb, lay)
+            if status != B_END:
                 break
         else:
             j = code

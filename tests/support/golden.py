@@ -31,7 +31,7 @@ import msgpack
 import numba
 import numpy as np
 
-from radical_rt.apps.batch import CHUNK_MESSAGES, make_processor, make_summary
+from radical_rt.apps.batch import make_processor, make_summary
 from radical_rt.contract.params import ParamTable
 
 GOLDEN_DIR = Path(__file__).resolve().parent.parent / "golden"
@@ -56,10 +56,11 @@ def platform_id() -> dict[str, str]:
             "machine": platform.machine()}
 
 
-#: how run_streams feeds the processor: "many" — chunks of CHUNK_MESSAGES through feed_many, as
-#: ``radical process`` does; "one" — message by message through feed, as the node does
-#: (test_golden checks both against the same records)
+#: how run_streams feeds the processor: "many" — chunks of CHUNK_MESSAGES through feed_many (the
+#: block intake that ``radical process`` runs on whole archive chunks); "one" — message by message
+#: through feed, as the node does (test_golden checks both against the same records)
 FEED = {"mode": "many"}
+CHUNK_MESSAGES = 256
 
 
 def run_streams(streams: list[list[tuple[str, int, bytes]]], params: dict | None = None,

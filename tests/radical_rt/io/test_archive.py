@@ -242,3 +242,44 @@ def test_time_ordered_chunks_read_without_merge(tmp_path, stream, archive):
     flat.write_bytes(bytes(data))
     with ArchiveReader(flat, validate_crcs=True) as r, pytest.raises(ArchiveError, match="crc"):
         list(r.iter_raw())
+
+
+def _flatten(blocks):
+    return [(b.topic(i), int(b.log_ns[i]), b.payload(i)) for b in blocks for i in range(len(b))]
+
+
+def test_blocks_hold_the_messages_of_iter_raw(tmp_path, stream, archive):
+    """iter_blocks (the batch read: a chunk's bytes and its message records as arrays) gives
+    iter_raw's messages in iter_raw's order: chunk by chunk when the chunks do not overlap in
+    time (ties kept in file order), one merged block when they do; CRCs checked; a record that
+    runs past its chunk's end is an ArchiveError."""
+    ordered = sorted(stream, key=lambda e: e[2])
+    ordered += [("/st1", dict(m, note="tie"), t) for topic, m, t in ordered[-3:] if topic == "/st1"]
+    path = write_stream(tmp_path / "ordered.mcap", ordered, chunk_size=512)
+    topics = ["/siru", "/st1"]
+    with ArchiveReader(path) as r:
+        blocks = list(r.iter_blocks(topics))
+        assert len(blocks) == len(r._summary.chunk_indexes) > 3
+        assert _flatten(blocks) == list(r.iter_raw(topics))
+        assert sum(len(b) for b in blocks) == sum(1 for e in ordered if e[0] in topics)
+    with ArchiveReader(archive) as r:  # chunks overlap in time: one block of the merged read
+        blocks = list(r.iter_blocks(topics))
+        assert len(blocks) == 1 and _flatten(blocks) == list(r.iter_raw(topics))
+    flat = write_stream(tmp_path / "flat.mcap", ordered[:200], compression="none", chunk_size=512)
+    data = bytearray(flat.read_bytes())
+    with strict_reader(flat) as r:
+        c = r._summary.chunk_indexes[1]
+    bad = bytearray(data)
+    bad[c.chunk_start_offset + 200] ^= 0xFF
+    (tmp_path / "crc.mcap").write_bytes(bytes(bad))
+    with ArchiveReader(tmp_path / "crc.mcap", validate_crcs=True) as r, \
+            pytest.raises(ArchiveError, match="crc"):
+        list(r.iter_blocks(topics))
+    # the first record of chunk 1 claims more bytes than the chunk holds (chunk header: opcode,
+    # length, start and end time, uncompressed size and CRC, compression string, records length)
+    first = c.chunk_start_offset + 9 + 8 + 8 + 8 + 4 + 4 + len("") + 8
+    long = bytearray(data)
+    long[first + 1:first + 9] = (1 << 40).to_bytes(8, "little")
+    (tmp_path / "long.mcap").write_bytes(bytes(long))
+    with ArchiveReader(tmp_path / "long.mcap") as r, pytest.raises(ArchiveError, match="past"):
+        list(r.iter_blocks(topics))
