@@ -205,7 +205,7 @@ class BlockFeed:
     #: the fields a sample-triggered packet may have for the block to make it from a row
     ROW_FIELDS = frozenset(("seq", "t", "q_body_from_inertial", "omega_body", "flags", "mode"))
     #: siru messages one block call may take when their sample packets are made as rows
-    K_SIRU = 8
+    K_SIRU = 32
     _rows_cache: tuple | None = None  # (the specs it was made for, sp_f, sp_i, rows_f, rows_i, k)
 
     def _block_rows(self) -> tuple:
