@@ -22,10 +22,16 @@ from radical_rt.engine.loop_layout import (
     CNT,
     CNT_FLAGS,
     CNT_MASKED,
+    CNT_PAR_STAT,
+    CNT_PAR_SUMS,
     IO,
     IO_ATT_VALID,
     IO_LOCKED_SINCE,
     IO_MODE,
+    IO_PAR_NU,
+    IO_PAR_RHO,
+    IO_PAR_T0,
+    IO_PAR_Z,
     IO_T,
 )
 from radical_rt.engine.steps import MODE_CONVERGED, MODE_CONVERGING, MODE_DEGRADED, MODE_INIT
@@ -187,8 +193,26 @@ class EngineState:
     last_valid_st = _drained("last_valid_st", "the last valid epoch [s] per tracker 1, 2 seen")
     masked = _drained("masked", "whether the last propagation masked a gyro")
     last_numeric = _drained("last_numeric", "the text of the last numeric fault ('' : none)")
-    _sum_pending = _drained("sum_pending", "the FDI statistic of the parity sum queued since the "
-                                           "last window hook (None: none; (): not computed)")
+    _b_sum_pending: tuple | None = None
+
+    @property
+    def _sum_pending(self):
+        """The FDI statistic (ν, ρ, t0, z) of the parity sum queued since the last window hook
+        (None: none; (): not computed), taken from the compiled calls' io and cnt on its own (the
+        window hook reads it at every parity sum; the rest of the bookkeeping waits until read)."""
+        cnt = self._cnt
+        if cnt.item(CNT_PAR_SUMS):
+            io = self._io
+            self._b_sum_pending = ((io.item(IO_PAR_NU), io.item(IO_PAR_RHO), io.item(IO_PAR_T0),
+                                    io.item(IO_PAR_Z)) if cnt.item(CNT_PAR_STAT) else ())
+            cnt[CNT_PAR_SUMS] = cnt[CNT_PAR_STAT] = 0
+        return self._b_sum_pending
+
+    @_sum_pending.setter
+    def _sum_pending(self, value) -> None:
+        if hasattr(self, "_cnt"):
+            self._sum_pending  # noqa: B018 (a sum the calls queued is replaced, not kept)
+        self._b_sum_pending = value
 
     # ---------------------------------------------------------------- packed storage
     # the arrays the compiled release reads or writes: radical_rt.engine.engine_layout.SLOTS
