@@ -289,6 +289,18 @@ class LoopShell:
         rest of what the compiled calls counted (the stream's flags read it at every packet)."""
         return self._b_counters["gyro_gaps"] + self._cnt.item(FL.CNT_GAPS)
 
+    def generation(self) -> tuple[int, int, int]:
+        """(cold starts, warm starts, attitude initializations) as ``counters`` has them, without
+        taking the rest of what the compiled calls counted (the FDI's restart test reads them at
+        every window hook); the first read goes through ``counters`` (which makes the keys)."""
+        b = self._b_counters
+        if "cold_starts" in b and "warm_starts" in b and "att_inits" in b:
+            cnt = self._cnt
+            return (b["cold_starts"], b["warm_starts"] + cnt.item(FL.CNT_GAPS),
+                    b["att_inits"] + cnt.item(FL.CNT_ATT_INITS))
+        c = self.counters
+        return c["cold_starts"], c["warm_starts"], c["att_inits"]
+
     def _load_bookkeeping(self) -> None:
         """The bookkeeping the compiled calls continue (last valid tracker epochs, NIS sums) from
         the Python maps into io, after Python replaced them (a checkpoint restored; the Python

@@ -275,7 +275,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
 
     # ------------------------------------------------------------------ internals
     def _check_gen(self, eng) -> None:
-        gen = (eng.counters["cold_starts"], eng.counters["warm_starts"], eng.counters["att_inits"])
+        gen = eng.generation()
         if gen != self.gen:  # a new attitude (start, gap): history and hypotheses are void
             self._restart(eng, gen)
 
