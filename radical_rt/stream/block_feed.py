@@ -39,6 +39,7 @@ from radical_rt.stream.telemetry import build
 from radical_rt.stream.tracker_queue import IN_RELEASE
 
 _CODE = {"siru": T_SIRU, "st1": 1, "st2": 2}
+_NO_BYTES, _NO_INTS = np.frombuffer(b"", np.uint8), np.zeros(0, np.int64)  # (no messages)
 _LINK_LOSS = int(Flag.LINK_LOSS)
 
 
@@ -132,10 +133,34 @@ class BlockFeed:
                 and not self._jumps.held and not self._guard_live
                 and e.gyro_gaps() == self._gyro_gaps_seen)
 
-    def _block_call(self, buf, topics, off, size, n: int, i: int, resume: bool = False) -> bool:
+    def _release_final(self) -> bool:
+        """End of a stream that went through the block: its release of everything (watermark
+        inf, StreamProcessor.end_stream) by the block kernel too, with the window hooks it stops
+        for. False (nothing done): the caller releases (the shell's path: the block was not used
+        in this stream — the node — or cannot run now)."""
+        if not (self._block_used and self._block_ready()):
+            return False
+        none = (_NO_BYTES, _NO_INTS, _NO_INTS, _NO_INTS, 0, 0)
+        if not self._block_call(*none, final=True):
+            return False
+        bi = self._bi
+        while int(bi[SL.BI_STATUS]) == B_RESUME:
+            v = bi.tolist()
+            bi[SL.BI_RE] = self.engine.hook_after(v[SL.BI_RREASON], v[SL.BI_RSTAGE],
+                                                  v[SL.BI_RE], self.tracker_q.ev_f)
+            if not (self._block_ready() and self._block_call(*none, resume=True)):
+                self._continue_release()
+                break
+        return True
+
+    _block_used = False  # the block took messages of this stream (begin_stream clears it)
+
+    def _block_call(self, buf, topics, off, size, n: int, i: int, resume: bool = False,
+                    final: bool = False) -> bool:
         """Room made, the controls set, one :func:`intake_block` call from message i (resume:
-        first the rest of its release, BI_R*), the state read back. False (nothing done): the
-        engine's shell must make the calls (FDI bank)."""
+        first the rest of its release, BI_R*; final: the release of everything, no message),
+        the state read back. False (nothing done): the engine's shell must make the calls (FDI
+        bank)."""
         gq, tq, e, clock = self.gyro_q, self.tracker_q, self.engine, self.clock
         cap = self._wire.capacity
         sp_f, sp_i, rows_f, rows_i, k_siru = self._block_rows()
@@ -156,7 +181,8 @@ class BlockFeed:
         bi[SL.BI_NEXT], bi[SL.BI_GQ_HEAD], bi[SL.BI_GQ_END] = i, gq.head, gq.end
         bi[SL.BI_G_END], bi[SL.BI_TRK_END], bi[SL.BI_TRK_SEQ] = g_end, trk_end, trk_seq
         bi[SL.BI_SIRU_LEFT], bi[SL.BI_ROWS_OK] = k_siru, k_siru > 1
-        bi[SL.BI_RESUME] = resume
+        bi[SL.BI_RESUME], bi[SL.BI_FINAL] = resume, final
+        self._block_used = True
         w = self._wire
         intake_block(buf, topics, off, size, n, bi, bf, w.t_bus, w.tt, w.dtheta, w.status,
                      tq.ss, tq.si, tq.ev_f, tq.ev_i, tq.q_work, self._block_q, I, F, OF, OI,

@@ -76,6 +76,7 @@ from radical_rt.stream.stream_layout import (
     BI_CHUNK,
     BI_CODE,
     BI_CONFLICT,
+    BI_FINAL,
     BI_G_END,
     BI_GQ_END,
     BI_GQ_HEAD,
@@ -159,11 +160,11 @@ def stream_wake(bi, bf, ss, io, cnt, clock_F):
 def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i, R1,
              R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay,
              trk_f, trk_i):
-    """The stream's release for the watermark t_max − latency − slack (StreamProcessor._release
-    and LoopShell.release's first call). Returns False when that call stopped before the release
+    """The stream's release for the watermark t_max − latency − slack, or inf with BI_FINAL (the
+    end of a stream) (StreamProcessor._release and LoopShell.release's first call). Returns False when that call stopped before the release
     was complete (BI_R* say where; the caller returns B_RESUME)."""
     pred[0] = 0.0  # no prediction from this release (yet)
-    wm = ss[SS_T_MAX] - bf[BF_LATENCY] - bf[BF_SLACK]
+    wm = math.inf if bi[BI_FINAL] != 0 else ss[SS_T_MAX] - bf[BF_LATENCY] - bf[BF_SLACK]
     a = bi[BI_GQ_HEAD]
     plan, e1, z = release_plan(ss, si, ev_f, q_t, a, bi[BI_GQ_END], wm, acc_i[0], bi[BI_WINDOW],
                                defer)
@@ -333,11 +334,17 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
                      cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i):
             bi[BI_STATUS] = B_RESUME
             return
-        if topic[i] == T_SIRU:
+        if i < n and topic[i] == T_SIRU:
             status = _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
                                 q_dth, q_dt, q_st, fb, ib, bb, lay)
         if status == B_END:
             i += 1
+    elif bi[BI_FINAL] != 0:  # the end of the stream: everything released (no message)
+        if not _release(False, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
+                        acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF,
+                        bfb, bib, bbb, blay, trk_f, trk_i):
+            bi[BI_STATUS] = B_RESUME
+            return
     while i < n and status == B_END:
         code = topic[i]
         if code == T_OTHER or size[i] > bi[BI_MAX_PAYLOAD] or (code != T_SIRU

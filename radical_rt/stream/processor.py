@@ -107,6 +107,7 @@ class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
         self.t_now = -math.inf  # newest reconstructed gyro sample time taken in [s]
         self._span_open = True  # the stream's first input time is still to be noted
         self._new_sample = False
+        self._block_used = False
         self.gyro_q.clear()
 
     # newest t_bus of any input [s]; epoch up to which samples count as released [s]; late
@@ -295,7 +296,8 @@ class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
         out = self.clock.flush()
         if len(out.t):
             self.gyro_q.push(out)
-        self._release(math.inf)
+        if not self._release_final():  # (the block kernel's, when the stream went through it)
+            self._release(math.inf)
         if self.engine.att_valid:
             self.engine.flush_parity()
         log = self.streams

@@ -81,4 +81,5 @@ BI_ROWS_OK = BI.add("rows_ok", doc="1: the sample-triggered packets may be made 
 BI_SIRU_LEFT = BI.add("siru_left", doc="in/out: siru messages the call may still take")
 BI_ROWS = BI.add("rows", doc="out: rows of sample-triggered packets made")
 BI_RESUME = BI.add("resume", doc="in: 1: first the rest of message next's release (BI_R*)")
+BI_FINAL = BI.add("final", doc="in: 1: release everything (watermark inf), no message")
 BI.freeze()
