@@ -33,12 +33,14 @@ from radical_rt.stream.intake_block import (
     B_TRK_TAIL,
     T_OTHER,
     T_SIRU,
+    T_ST1,
+    T_ST2,
     intake_block,
 )
 from radical_rt.stream.telemetry import build
 from radical_rt.stream.tracker_queue import IN_RELEASE
 
-_CODE = {"siru": T_SIRU, "st1": 1, "st2": 2}
+_CODE = {"siru": T_SIRU, "st1": T_ST1, "st2": T_ST2}
 _NO_BYTES, _NO_INTS = np.frombuffer(b"", np.uint8), np.zeros(0, np.int64)  # (no messages)
 _LINK_LOSS = int(Flag.LINK_LOSS)
 
@@ -80,31 +82,16 @@ class BlockFeed:
         n = len(tidx)
         topics = np.array([_CODE.get(t, T_OTHER) for t in names], np.int64)[tidx]
         out: list = []
-        i, resume = 0, False
+        i = 0
         while i < n:
-            if resume:  # message i's release stopped for the window hook, which has run
-                resume = False
-                if not (self._block_ready() and self._block_call(buf, topics, off, size, n, i,
-                                                                 True)):
-                    self._continue_release()
-                    self._block_tail(B_RESUME, int(topics[i]))
-                    i += 1
-                    continue
-            elif not self._block_ready() or not self._block_call(buf, topics, off, size, n, i):
+            if not self._block_ready() or not self._block_call(buf, topics, off, size, n, i):
                 out += self.take_outputs()
                 out += self.feed(names[tidx[i]], buf[off[i]:off[i] + size[i]].tobytes())
                 i += 1
                 continue
-            bi = self._bi
-            status, i = int(bi[SL.BI_STATUS]), int(bi[SL.BI_NEXT])
+            status, i = self._block_status(buf, topics, off, size, n)
             if status == B_END:
                 break
-            if status == B_RESUME:
-                v = bi.tolist()
-                bi[SL.BI_RE] = self.engine.hook_after(v[SL.BI_RREASON], v[SL.BI_RSTAGE],
-                                                      v[SL.BI_RE], self.tracker_q.ev_f)
-                resume = True
-                continue
             if status == B_BAIL:
                 out += self.take_outputs()
                 out += self.feed(names[tidx[i]], buf[off[i]:off[i] + size[i]].tobytes())
@@ -112,6 +99,23 @@ class BlockFeed:
                 self._block_tail(status, int(topics[i]))
             i += 1
         return out + self.take_outputs()
+
+    def _block_status(self, buf, topics, off, size, n: int) -> tuple[int, int]:
+        """(status, message) of the last block call, after the window hooks it stopped for
+        (B_RESUME): each hook, then the rest of that release by the kernel again (the calls
+        that follow may stop for the next hook), or by the engine's shell when the block cannot
+        take it (an FDI bank started, a guard went live; the status is then B_RESUME: the
+        message's own tail is left)."""
+        bi = self._bi
+        while int(bi[SL.BI_STATUS]) == B_RESUME:
+            v = bi.tolist()
+            bi[SL.BI_RE] = self.engine.hook_after(v[SL.BI_RREASON], v[SL.BI_RSTAGE],
+                                                  v[SL.BI_RE], self.tracker_q.ev_f)
+            if not (self._block_ready()
+                    and self._block_call(buf, topics, off, size, n, v[SL.BI_NEXT], True)):
+                self._continue_release()
+                return B_RESUME, v[SL.BI_NEXT]
+        return int(bi[SL.BI_STATUS]), int(bi[SL.BI_NEXT])
 
     def _continue_release(self) -> None:
         """The rest of the release the block left at BI_R* (after its window hook), by the
@@ -140,17 +144,10 @@ class BlockFeed:
         in this stream — the node — or cannot run now)."""
         if not (self._block_used and self._block_ready()):
             return False
-        none = (_NO_BYTES, _NO_INTS, _NO_INTS, _NO_INTS, 0, 0)
-        if not self._block_call(*none, final=True):
+        none = (_NO_BYTES, _NO_INTS, _NO_INTS, _NO_INTS, 0)
+        if not self._block_call(*none, 0, final=True):
             return False
-        bi = self._bi
-        while int(bi[SL.BI_STATUS]) == B_RESUME:
-            v = bi.tolist()
-            bi[SL.BI_RE] = self.engine.hook_after(v[SL.BI_RREASON], v[SL.BI_RSTAGE],
-                                                  v[SL.BI_RE], self.tracker_q.ev_f)
-            if not (self._block_ready() and self._block_call(*none, resume=True)):
-                self._continue_release()
-                break
+        self._block_status(*none)
         return True
 
     _block_used = False  # the block took messages of this stream (begin_stream clears it)
@@ -273,11 +270,10 @@ class BlockFeed:
         bi, bf = self._bi, self._bf
         if status == B_SIRU_GAP:
             self._note_input_gap(float(bf[SL.BF_T_IN]) - float(bf[SL.BF_PREV]))
-            self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s)
+            self._release(self.watermark())
         elif status == B_TRK_TAIL:
             self._conflict_evidence(code, float(bf[SL.BF_T_IN]))
             if int(bi[SL.BI_CODE]) == IN_RELEASE:
-                self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
-                              defer=True)
+                self._release(self.watermark(), defer=True)
         if code == T_SIRU and bi[SL.BI_NEW_SAMPLE] and not (status == B_SIRU and bi[SL.BI_ROWS_OK]):
             self._sample_outputs()  # (unless the kernel made them as rows)

@@ -29,8 +29,6 @@ It returns to Python (status B_*, with ``next`` the message concerned) wherever 
 * B_RESUME: a release stopped for the window hook (or counted a gyro gap, which the guards must
   see first): the caller runs the hook and the rest of that release (BI_R*), then the message's
   own tail;
-* B_STOP: tracker message ``next`` is done, and Python must look at the state before the next
-  one (a gyro gap was counted).
 
 The caller (:mod:`radical_rt.stream.block_feed`) makes room first (gyro queue, clock buffers, FDI
 histories) and reads the scalars back afterwards (BI_*, BF_* of
@@ -118,7 +116,7 @@ from radical_rt.stream.tracker_queue import IN_RELEASE, PLAN_GO, release_plan, t
 #: message topic codes (T_OTHER: anything else, e.g. temp: always Python's)
 T_SIRU, T_ST1, T_ST2, T_OTHER = 0, 1, 2, 3
 #: why intake_block returned (module docstring)
-B_END, B_BAIL, B_SIRU, B_SIRU_GAP, B_TRK_TAIL, B_RESUME, B_STOP = range(7)
+B_END, B_BAIL, B_SIRU, B_SIRU_GAP, B_TRK_TAIL, B_RESUME = range(6)
 
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
 # positions in the engine's tuple of views (radical_rt.engine.engine_layout)
@@ -324,7 +322,6 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     bi[BI_SIRU_M] = -1
     for j in range(3):
         bi[BI_TOOK + j] = 0
-    gaps0 = cnt[CNT_GAPS]
     i = bi[BI_NEXT]
     status = B_END
     if bi[BI_RESUME] != 0:  # the rest of message i's release after its window hook (Python's)
@@ -409,9 +406,6 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
                 if not done:
                     status = B_RESUME
                     break
-        if cnt[CNT_GAPS] != gaps0:
-            status = B_STOP
-            break
         i += 1
     bi[BI_NEXT] = i
     bi[BI_STATUS] = status

@@ -147,8 +147,7 @@ class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
         if self._span_open:
             self._note_first()
         if not released:
-            self._release(self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s,
-                          defer=topic != "siru")
+            self._release(self.watermark(), defer=topic != "siru")
         if self._new_sample:
             self._new_sample = False
             self._sample_outputs()
@@ -256,7 +255,7 @@ class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
                                  f"{topic} sample at t_bus={t} repeats the previous one")
             raise InputError("time_backwards", f"{topic} t_bus={t} is before the previous {last}")
         if code == IN_RELEASE:
-            self._release(self.t_max - si.latency_st_s - self.reorder_slack_s, defer=True)
+            self._release(self.watermark(), defer=True)
         return True
 
     def _reject(self, topic: str, exc: InputError) -> None:
@@ -265,6 +264,10 @@ class StreamProcessor(StreamOutputs, StreamGuards, BlockFeed):
         self.last_reject = f"{topic}: {exc}"
 
     # ---------------------------------------------------------------- release to the engine
+    def watermark(self) -> float:
+        """The release watermark t_max − latency − slack [s]: epochs up to it are released."""
+        return self.t_max - self.engine.si.latency_st_s - self.reorder_slack_s
+
     def _release(self, watermark: float, defer: bool = False) -> None:
         """Give the engine every tracker sample with epoch ≤ watermark and the gyro samples up to
         the watermark, in epoch order (one :meth:`Engine.release`).
