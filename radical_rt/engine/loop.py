@@ -97,7 +97,12 @@ from radical_rt.engine.steps import (
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_sample_packed
 from radical_rt.fdi.fdi_bank_propagate import append_rows
 from radical_rt.kernels.flat_views import borrow
-from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
+from radical_rt.kernels.propagate import (
+    PROP_MASKED,
+    PROP_UNDETERMINED,
+    propagate_window,
+    sample_work,
+)
 from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate
 from radical_rt.kernels.updates import (
@@ -155,9 +160,10 @@ def _window_due(E, cfg, io, cnt, t_event):
 
 
 @inline_kernel
-def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt):
+def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt, work):
     """Samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status (m,) int
-    bits, bridged (m,) bool, var_extra (m,) [rad²]): before an attitude exists only counted; a
+    bits, bridged (m,) bool, var_extra (m,) [rad²]; work: the propagation's
+    radical_rt.kernels.propagate.SampleWork): before an attitude exists only counted; a
     gap (dt > gyro_gap) loses the attitude (GYRO_GAP, warm start without bump); otherwise
     propagated window by window, closing each full window (close, correction fold). Returns
     (R_DONE, upto), or (R_ON_WINDOW, next sample) when the window hook has work after a close."""
@@ -183,9 +189,9 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt)
             stop += 1
         while k < stop and io[IO_ATT_VALID] != 0.0:
             k_next, pflags = propagate_window(
-                dth[:stop], dt[:stop], status[:stop], bridged[:stop], var_extra[:stop], k,
-                excluded, xp, q, A, W, U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y,
-                par_t, acc_i, acc_f, th_acc, window, arw, omega)
+                dth, dt, status, bridged, var_extra, k, stop, excluded, xp, q, A, W, U_ax, V_ax,
+                Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f, th_acc, window, arw,
+                omega, work)
             cnt[CNT_USED] += k_next - k
             if pflags & PROP_UNDETERMINED:
                 cnt[CNT_UNDETERMINED] += 1
@@ -360,13 +366,15 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
+    work = sample_work(dth.shape[1])  # the propagation's work arrays, for the whole call
     bank = bank_on(bib, blay)  # a bank runs (its control bi[BI_ON])
     while e < n_ev:
         epoch = ev_f[e, 0]
         up = k
         while up < z and t[up] <= epoch:
             up += 1
-        reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, up, E, cfg, io, cnt)
+        reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, up, E, cfg, io, cnt,
+                               work)
         if reason != R_DONE:
             return reason, k, e, 0
         j = ev_i[e, 0]
@@ -384,7 +392,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         if reason != R_DONE:
             return reason, k, e, 1
         e += 1
-    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt)
+    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt, work)
     if reason == R_DONE and pred[0] == 1.0 and io[IO_ATT_VALID] != 0.0:  # else now() does it
         q, omega = E[_Q], E[_OMEGA]
         q_p, omega_p = pred[2:6], pred[6:9]

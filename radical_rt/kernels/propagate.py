@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
+from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.model import correct_increment_lin, jacobian_gyro, masked_pinv
 from radical_rt.kernels.rotation import (
     apply_body_quat,
@@ -38,22 +39,24 @@ PROP_UNDETERMINED = 2  # some samples had fewer than 3 usable gyros (not propaga
 
 
 @kernel
-def propagate_window(dtheta, dt, status, bridged, var_extra, i0, excluded, xp, q, A, W, U_ax,
-                     V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f, th_acc, window,
-                     arw_var, omega):
-    """Propagate samples i0.. of a gyro batch until the window holds ``window`` samples.
+def propagate_window(dtheta, dt, status, bridged, var_extra, i0, stop, excluded, xp, q, A, W,
+                     U_ax, V_ax, Minv, Gp, N, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i, acc_f,
+                     th_acc, window, arw_var, omega, work):
+    """Propagate samples i0..stop−1 of a gyro batch until the window holds ``window`` samples.
 
     dtheta (m, n) [rad], dt (m,) [s], status (m,) int bits (gyro invalid), bridged (m,) bool,
     var_extra (m,) [rad²]; excluded (n,) bool (commanded exclusions); xp internal parameters
     (:mod:`radical_rt.kernels.model`, linear parametrization); A (3, n) estimated scaled axes, W, U_ax, V_ax
     (3, n) nominal triads, Minv, Gp, N from :func:`model.refresh_axes`; q (4,)
     q_body_from_inertial, propagated in place; omega (3,) [rad/s] receives the last body rate.
+    work: a :class:`SampleWork` for n gyros (the caller's, allocated once for many calls; used
+    here through views that own no memory, :func:`work_views`).
     Returns (index of the next unprocessed sample, flags PROP_*).
     """
-    m, n = dtheta.shape
-    wk = sample_work(n)
-    Gm = np.empty((3, n))
-    Mm = np.empty((3, 3))
+    n = dtheta.shape[1]
+    m = min(stop, dtheta.shape[0])
+    wk = work_views(work)
+    Gm, Mm = wk.Gm, wk.Mm
     flags = 0
     k = i0
     have = -1  # active-gyro bit pattern whose masked pseudo-inverse Gm, Mm hold (−1: none)
@@ -89,7 +92,8 @@ class SampleWork(NamedTuple):
     read): the corrected increments c, their signs sg and scale s (n,) of
     :func:`radical_rt.kernels.model.correct_increment_lin`, gh = Aᵀθ̂ (n,), θ̂ th (3,) [rad, body],
     one gyro's Jacobian columns F (3, 5), work4 and dq (4,), the active gyros (n,) bool, R(θ̂) and
-    a product T (3, 3)."""
+    a product T (3, 3), and a masked pseudo-inverse Gm (3, n) with its (AAᵀ)⁻¹ Mm (3, 3)
+    (:func:`radical_rt.kernels.model.masked_pinv`, for :func:`propagate_window`)."""
 
     c: np.ndarray
     sg: np.ndarray
@@ -102,6 +106,8 @@ class SampleWork(NamedTuple):
     active: np.ndarray
     R: np.ndarray
     T: np.ndarray
+    Gm: np.ndarray
+    Mm: np.ndarray
 
 
 @kernel
@@ -109,7 +115,17 @@ def sample_work(n):
     """A :class:`SampleWork` for n gyros."""
     return SampleWork(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(3),
                       np.empty((3, 5)), np.empty(4), np.empty(4), np.empty(n, dtype=np.bool_),
-                      np.empty((3, 3)), np.empty((3, 3)))
+                      np.empty((3, 3)), np.empty((3, 3)), np.empty((3, n)), np.empty((3, 3)))
+
+
+@inline_kernel
+def work_views(wk):
+    """The arrays of the :class:`SampleWork` wk as views that own no memory
+    (:func:`radical_rt.kernels.flat_views.borrow`): a kernel that takes wk as an argument (alive
+    for its whole call) unpacks them in its per-sample loop without atomic reference counting."""
+    return SampleWork(borrow(wk.c), borrow(wk.sg), borrow(wk.s), borrow(wk.gh), borrow(wk.th),
+                      borrow(wk.F), borrow(wk.work4), borrow(wk.dq), borrow(wk.active),
+                      borrow(wk.R), borrow(wk.T), borrow(wk.Gm), borrow(wk.Mm))
 
 
 @inline_kernel
@@ -135,7 +151,7 @@ def propagate_sample(dth_k, h, var_k, parity, q, A, W, U_ax, V_ax, Mi, G, N, Phi
     and (AAᵀ)⁻¹ Mi (3, 3): θ̂ = G c (left in wk.th; the caller takes the body rate θ̂/h of the last
     sample of a run from it), the attitude q, the window accumulators (module docstring), and when
     ``parity`` (all gyros, not bridged) the parity statistics. wk: a :class:`SampleWork`."""
-    c, sg, s, gh, th, F, work4, dq, active, R, T = wk
+    c, sg, s, gh, th, F, work4, dq, active, R, T = wk[:11]
     n = dth_k.shape[0]
     for r in range(3):
         th[r] = G[r, 0] * c[0]

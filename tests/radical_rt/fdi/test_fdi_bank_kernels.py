@@ -16,7 +16,7 @@ from radical_rt.fdi.fdi_bank import bank_tracker, decision_due
 from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, rows_after
 from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, HypothesisBank
-from radical_rt.kernels.propagate import propagate_window
+from radical_rt.kernels.propagate import propagate_window, sample_work
 from radical_rt.kernels.rotation import quat_conj, quat_mul, rotvec_to_quat
 from radical_rt.kernels.tracker_model import tracker_residual
 
@@ -201,8 +201,9 @@ def test_propagate_runs_compose_like_one_run_of_propagate_window():
         q, w = q0[h].copy(), np.zeros(3)
         Pa, Pp, Qa = np.eye(3), np.zeros((3, 5 * N + 3)), np.zeros((3, 3))
         propagate_window(f[2:m + 2, 3:], f[2:m + 2, 1], st[2:m + 2], br[2:m + 2], f[2:m + 2, 2], 0,
-                         masks[h], xp, q, A, W, U_ax, V_ax, Minv, Gp, np.zeros((N, 0)), Pa, Pp, Qa,
-                         *work[:2], np.zeros(4, np.int64), np.zeros(3), np.zeros(3), m + 1, 1e-12, w)
+                         m, masks[h], xp, q, A, W, U_ax, V_ax, Minv, Gp, np.zeros((N, 0)), Pa, Pp,
+                         Qa, *work[:2], np.zeros(4, np.int64), np.zeros(3), np.zeros(3), m + 1,
+                         1e-12, w, sample_work(N))
         assert np.array_equal(s[0][h], q) and np.array_equal(s[1][h], w)
         assert np.array_equal(s[4][h], Pa) and np.array_equal(s[5][h], Pp)
         assert np.array_equal(s[6][h], Qa)
