@@ -56,6 +56,7 @@ from radical_rt.engine.loop_layout import (
     IO_MODE,
     IO_T,
 )
+from radical_rt.kernels.flat_views import borrow
 from radical_rt.stream.packets import MAX_SIRU_BATCH
 from radical_rt.stream.siru_wire import WIRE_OK, siru_intake
 from radical_rt.stream.stream_layout import (
@@ -316,7 +317,20 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     run_release's (g_*: the FDI's gyro history, BI_G_END; trk_*: its tracker history, BI_TRK_END,
     BI_TRK_SEQ; pred: the sample packets' prediction). With BI_ROWS_OK, up to BI_SIRU_LEFT siru
     messages, each one's sample-triggered packets as rows (:func:`_sample_rows`; sp_f, sp_i:
-    their schedule); else one. Sets BI_STATUS and BI_NEXT."""
+    their schedule); else one. Sets BI_STATUS and BI_NEXT. The array
+    arguments are used as views that own no memory (:func:`radical_rt.kernels.flat_views.borrow`:
+    the kernels it calls pass them on without atomic reference counting)."""
+    buf, topic, off, size, bi = borrow(buf), borrow(topic), borrow(off), borrow(size), borrow(bi)
+    bf, w_tbus, w_tt, w_dth = borrow(bf), borrow(w_tbus), borrow(w_tt), borrow(w_dth)
+    w_st, ss, si, ev_f, ev_i = borrow(w_st), borrow(ss), borrow(si), borrow(ev_f), borrow(ev_i)
+    q_work, last_q, cI, cF, OF = borrow(q_work), borrow(last_q), borrow(cI), borrow(cF), borrow(OF)
+    OI, tags, q_t, q_dt, q_dth = borrow(OI), borrow(tags), borrow(q_t), borrow(q_dt), borrow(q_dth)
+    q_st, q_br, q_ve, acc_i = borrow(q_st), borrow(q_br), borrow(q_ve), borrow(acc_i)
+    R1, R2, fb, ib, bb = borrow(R1), borrow(R2), borrow(fb), borrow(ib), borrow(bb)
+    lay, cfg, io, cnt, g_f = borrow(lay), borrow(cfg), borrow(io), borrow(cnt), borrow(g_f)
+    g_i, g_b, pred, bfb, bib = borrow(g_i), borrow(g_b), borrow(pred), borrow(bfb), borrow(bib)
+    bbb, blay, trk_f, trk_i = borrow(bbb), borrow(blay), borrow(trk_f), borrow(trk_i)
+    sp_f, sp_i, rows_f, rows_i = borrow(sp_f), borrow(sp_i), borrow(rows_f), borrow(rows_i)
     bi[BI_RELEASED] = 0
     bi[BI_ROWS] = 0
     bi[BI_SIRU_M] = -1
