@@ -23,7 +23,7 @@ BUFFER_DTYPES = ("float64", "int64", "bool")
 
 class Slot(NamedTuple):
     """One packed array: ``owner`` ("" the engine, "ws" its UD workspace, "geo" its copy of the
-    nominal triads), attribute ``name``, ``buffer`` (FLOAT, INT, BOOL) and rank ``ndim`` (1, 2)."""
+    nominal triads, "pw" the propagation's work arrays, radical_rt.kernels.propagate.SampleWork), attribute ``name``, ``buffer`` (FLOAT, INT, BOOL) and rank ``ndim`` (1, 2)."""
 
     owner: str
     name: str
@@ -53,6 +53,8 @@ SLOTS = _slots("""
     st_sigma:f1 gyro_mask:b1 Hwbuf:f2 zwbuf:f1 Lbuf:f2 p0:f1 scale_mask:b1 pq:f2 pq_i:i1
     par_innov:f1 par_sig:f1 z_par:f1 H_par:f2 theta_par:f1 Phi_par:f2 fdi_z:f1 fdi_H:f2
     fdi_th:f1 fdi_Phi:f2 fdi_h:f1
+    pw.c:f1 pw.sg:f1 pw.s:f1 pw.gh:f1 pw.th:f1 pw.F:f2 pw.work4:f1 pw.dq:f1 pw.active:b1 pw.R:f2
+    pw.T:f2 pw.Gm:f2 pw.Mm:f2
 """)
 
 #: "owner.name" (or "name") → position in E

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -113,6 +114,11 @@ class EngineState:
         self.Sbuf, self.innov, self.sig = np.zeros((m_max, m_max)), np.zeros(m_max), np.zeros(m_max)
         self.Hwbuf, self.zwbuf, self.Lbuf = np.zeros((m_max, ns)), np.zeros(m_max), np.zeros((m_max, m_max))
         self.ws = ud.UDWorkspace(ns)
+        # the propagation's work arrays (radical_rt.kernels.propagate.SampleWork, same names)
+        self.pw = SimpleNamespace(
+            c=np.zeros(n), sg=np.zeros(n), s=np.zeros(n), gh=np.zeros(n), th=np.zeros(3),
+            F=np.zeros((3, 5)), work4=np.zeros(4), dq=np.zeros(4), active=np.zeros(n, np.bool_),
+            R=np.zeros((3, 3)), T=np.zeros((3, 3)), Gm=np.zeros((3, n)), Mm=np.zeros((3, 3)))
         self.param_idx = np.arange(3, ns, dtype=np.int64)
         self.gyro_mask = np.zeros(ns, dtype=np.bool_)  # the gyro calibration states (b … dv)
         self.gyro_mask[layout.gyro_params] = True

@@ -100,8 +100,8 @@ from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.propagate import (
     PROP_MASKED,
     PROP_UNDETERMINED,
+    SampleWork,
     propagate_window,
-    sample_work,
 )
 from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate
@@ -126,6 +126,11 @@ _Q, _A = E_INDEX["q"], E_INDEX["A"]
 _W, _UAX = E_INDEX["geo.W"], E_INDEX["geo.U"]
 _VAX, _MINV = E_INDEX["geo.V"], E_INDEX["Minv"]
 _GP, _N = E_INDEX["Gp"], E_INDEX["N"]
+# the propagation's work arrays (radical_rt.kernels.propagate.SampleWork), field by field
+_PW_C, _PW_SG, _PW_S, _PW_GH = (E_INDEX["pw." + f] for f in ("c", "sg", "s", "gh"))
+_PW_TH, _PW_F, _PW_W4, _PW_DQ = (E_INDEX["pw." + f] for f in ("th", "F", "work4", "dq"))
+_PW_ACT, _PW_R, _PW_T = (E_INDEX["pw." + f] for f in ("active", "R", "T"))
+_PW_GM, _PW_MM = E_INDEX["pw.Gm"], E_INDEX["pw.Mm"]
 _PHI_AA, _PHI_AP = E_INDEX["Phi_aa"], E_INDEX["Phi_ap"]
 _Q_AA, _PAR_Y = E_INDEX["Q_aa"], E_INDEX["par_y"]
 _PAR_T, _ACC_I = E_INDEX["par_t"], E_INDEX["acc_i"]
@@ -366,7 +371,8 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
-    work = sample_work(dth.shape[1])  # the propagation's work arrays, for the whole call
+    work = SampleWork(E[_PW_C], E[_PW_SG], E[_PW_S], E[_PW_GH], E[_PW_TH], E[_PW_F], E[_PW_W4],
+                      E[_PW_DQ], E[_PW_ACT], E[_PW_R], E[_PW_T], E[_PW_GM], E[_PW_MM])
     bank = bank_on(bib, blay)  # a bank runs (its control bi[BI_ON])
     while e < n_ev:
         epoch = ev_f[e, 0]

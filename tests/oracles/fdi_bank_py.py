@@ -25,7 +25,7 @@ from radical_rt.fdi.fdi_detect import chi2_isf
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import refresh_axes
-from radical_rt.kernels.propagate import propagate_window
+from radical_rt.kernels.propagate import propagate_window, sample_work
 from radical_rt.kernels.rotation import apply_body_rotation, quat_conj, quat_mul, rotvec_to_quat
 from radical_rt.kernels.tracker_model import tracker_residual
 
@@ -64,6 +64,7 @@ class PythonHypothesisBank:
         refresh_axes(self.xp, eng.geo.W, eng.geo.U, eng.geo.V, snap.N.copy(), self.A, self.Minv,
                      self.Gp, N)
         self.N_none = np.zeros((n, 0))
+        self._work = sample_work(n)  # propagate_window's work arrays
         P = np.empty((eng.ns, eng.ns))
         ud.ud_to_cov(snap.U, snap.d, P)
         self.Ppp = P[3:, 3:].copy()
@@ -107,10 +108,11 @@ class PythonHypothesisBank:
             k = a
             while k < b:
                 k, pflags = propagate_window(
-                    dth, dt, status, bridged, var_extra, k, mask, self.xp,
+                    dth, dt, status, bridged, var_extra, k, dth.shape[0], mask, self.xp,
                     self.q[h], self.A, eng.geo.W, eng.geo.U, eng.geo.V, self.Minv, self.Gp,
                     self.N_none, self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t,
-                    self.acc_i, self.acc_f, self.th_acc, b - a + 1, arw, self.omega[h])
+                    self.acc_i, self.acc_f, self.th_acc, b - a + 1, arw, self.omega[h],
+                    self._work)
                 if pflags & 2:
                     self.undetermined[h] += 1
             F, G = self.Phi_aa, self.Phi_ap

@@ -22,7 +22,12 @@ from radical_rt.engine.filter import Engine
 from radical_rt.engine.shell import ST_EDITED_BIT, ST_KIND
 from radical_rt.kernels import ud
 from radical_rt.kernels.model import fold_correction, parity_from_stats
-from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
+from radical_rt.kernels.propagate import (
+    PROP_MASKED,
+    PROP_UNDETERMINED,
+    SampleWork,
+    propagate_window,
+)
 from radical_rt.kernels.timeupdate import close_time_window, regressor_reliability
 from radical_rt.kernels.tracker_model import quat_from_tracker, tracker_rows
 from radical_rt.kernels.updates import (
@@ -142,10 +147,11 @@ class ReferenceEngine(Engine):
         var_extra = var_extra[:stop]
         while k < stop and self.att_valid:
             k_next, pflags = propagate_window(
-                dtheta, dt, status, bridged, var_extra, k, self.excluded, self.xp, self.q, self.A,
-                self.geo.W, self.geo.U, self.geo.V, self.Minv, self.Gp, self.N, self.Phi_aa,
-                self.Phi_ap, self.Q_aa, self.par_y, self.par_t, self.acc_i, self.acc_f,
-                self.th_acc, self.si.prop_window, self.si.arw_var_per_s, self.omega)
+                dtheta, dt, status, bridged, var_extra, k, stop, self.excluded, self.xp, self.q,
+                self.A, self.geo.W, self.geo.U, self.geo.V, self.Minv, self.Gp, self.N,
+                self.Phi_aa, self.Phi_ap, self.Q_aa, self.par_y, self.par_t, self.acc_i,
+                self.acc_f, self.th_acc, self.si.prop_window, self.si.arw_var_per_s, self.omega,
+                SampleWork(**vars(self.pw)))
             self.counters["siru_used"] += k_next - k
             if pflags & PROP_UNDETERMINED:
                 self.counters["siru_undetermined"] += 1
