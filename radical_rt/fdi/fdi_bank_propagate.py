@@ -19,8 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from radical_rt._jit import kernel
+from radical_rt.kernels.flat_views import borrow, keep
 from radical_rt.kernels.model import correct_increment_lin, masked_pinv, select_increments
-from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work
+from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work, work_views
 
 #: columns of the gyro history's float block (radical_rt.fdi.fdi_history.SampleBuffer): t, dt, var_extra, dθ
 COL_T, COL_DT, COL_VAR, COL_DTH = 0, 1, 2, 3
@@ -80,16 +81,19 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     if z <= a:
         return 0
     nh, n = masks.shape
-    wk = sample_work(n)  # one set of work arrays for every hypothesis and sample
-    Gm = np.empty((nh, 3, n))  # per hypothesis: the masked pseudo-inverse of the pattern `have`
-    Mm = np.empty((nh, 3, 3))
+    # work arrays, used through views that own no memory (no atomic reference counts in the
+    # per-sample loop); their owners are kept to the end (flat_views.keep)
+    own = (sample_work(n), sample_work(n), np.empty((nh, 3, n)), np.empty((nh, 3, 3)))
+    wk = work_views(own[0])  # one set of work arrays for every hypothesis and sample
+    every = work_views(own[1])  # the sample corrected once, over every valid gyro
+    Gm = borrow(own[2])  # per hypothesis: the masked pseudo-inverse of the pattern `have`
+    Mm = borrow(own[3])
     have = np.full(nh, -1, np.int64)
     have_ok = np.zeros(nh, np.bool_)
     undet = np.zeros(nh, np.bool_)
     th_last = np.empty((nh, 3))  # θ̂ [rad] and interval [s] of each hypothesis's last sample
     h_last = np.zeros(nh)
     moved = np.zeros(nh, np.bool_)
-    every = sample_work(n)  # the sample corrected once, over every valid gyro
     no_mask = np.zeros(n, np.bool_)
     for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
         dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
@@ -118,6 +122,7 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
             for r in range(3):
                 omega[h, r] = th_last[h, r] / h_last[h]
     tlast[0] = f[z - 1, COL_T]
+    keep(own)
     return z - a
 
 

@@ -88,3 +88,27 @@ def _borrow_compiled(a):
     def impl(a):
         return numba.carray(_at(a, 0), a.shape)
     return impl
+
+
+@intrinsic
+def _use(typingctx, x):
+    """A use of ``x`` that compiles to nothing (see :func:`keep`)."""
+    def codegen(context, builder, signature, args):
+        return context.get_dummy_value()
+
+    return types.none(x), codegen
+
+
+def keep(x):
+    """Nothing (Python callers). In compiled code, a last use of ``x``: Numba releases a local
+    array after its last use, so a kernel that makes borrowed views (:func:`borrow`) of arrays it
+    allocated itself calls ``keep`` on them (or on the tuple holding them) after its last use of
+    the views, and the memory stays valid until then."""
+
+
+@overload(keep, inline="always", jit_options=JIT_POLICY)
+def _keep_compiled(x):
+    def impl(x):
+        _use(x)
+
+    return impl

@@ -1,13 +1,13 @@
 """The compiled views of radical_rt.kernels.flat_views (memory they do not own) against their
 NumPy forms: the same elements, writes reaching the buffer, borrow() of C-contiguous and strided
-arrays."""
+arrays, keep() holding a kernel's own array alive for its borrowed view."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from radical_rt.kernels.flat_views import borrow, view1, view2, view3
+from radical_rt.kernels.flat_views import borrow, keep, view1, view2, view3
 
 
 @njit(cache=False)
@@ -47,3 +47,26 @@ def test_borrow_c_contiguous_and_strided():
     assert borrow(a) is a  # the Python form
     total, s_total, shape = _borrowed(a, strided)
     assert a[0, 0] == -1.0 and total == a.sum() and s_total == strided.sum() and shape == (3, 4)
+
+
+@njit(cache=False)
+def _own_borrowed(n, rounds):
+    """A kernel's own array seen through a borrowed view while the kernel allocates (and frees)
+    arrays of the same size many times, which would reuse its memory had it been released after
+    its last use; kept to the end."""
+    own = np.full(n, 1.0)
+    v = borrow(own)
+    junk = 0.0
+    for r in range(rounds):
+        tmp = np.full(n, 2.0 + r)
+        junk += tmp[0]
+    total = v.sum()
+    keep(own)
+    return total, junk
+
+
+def test_keep_holds_the_owner_of_a_borrowed_view():
+    total, junk = _own_borrowed(64, 200)
+    assert total == 64.0
+    assert junk == sum(2.0 + r for r in range(200))
+    assert keep(np.zeros(3)) is None  # the Python form does nothing
