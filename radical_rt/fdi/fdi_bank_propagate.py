@@ -16,11 +16,9 @@ when that would change nothing. The tracker update, the per-sample step and the 
 
 from __future__ import annotations
 
-import numpy as np
-
 from radical_rt._jit import kernel
-from radical_rt.kernels.flat_views import borrow, keep
-from radical_rt.kernels.model import correct_increment_lin, masked_pinv, select_increments
+from radical_rt.kernels.flat_views import keep
+from radical_rt.kernels.model import correct_increment_lin, masked_pinv
 from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work, work_views
 
 #: columns of the gyro history's float block (radical_rt.fdi.fdi_history.SampleBuffer): t, dt, var_extra, dθ
@@ -82,45 +80,33 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
         return 0
     nh, n = masks.shape
     # work arrays, used through views that own no memory (no atomic reference counts in the
-    # per-sample loop); their owners are kept to the end (flat_views.keep)
-    own = (sample_work(n), sample_work(n), np.empty((nh, 3, n)), np.empty((nh, 3, 3)))
-    wk = work_views(own[0])  # one set of work arrays for every hypothesis and sample
-    every = work_views(own[1])  # the sample corrected once, over every valid gyro
-    Gm = borrow(own[2])  # per hypothesis: the masked pseudo-inverse of the pattern `have`
-    Mm = borrow(own[3])
-    have = np.full(nh, -1, np.int64)
-    have_ok = np.zeros(nh, np.bool_)
-    undet = np.zeros(nh, np.bool_)
-    th_last = np.empty((nh, 3))  # θ̂ [rad] and interval [s] of each hypothesis's last sample
-    h_last = np.zeros(nh)
-    moved = np.zeros(nh, np.bool_)
-    no_mask = np.zeros(n, np.bool_)
-    for k in range(a, z):  # sample by sample, every hypothesis (each has its own state)
-        dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
-        active_gyros(no_mask, st[k], every.active)
-        correct_increment_lin(dth_k, h_k, xp, every.active, every.c, every.sg, every.s)
-        for h in range(nh):
-            n_act, bits = active_gyros(masks[h], st[k], wk.active)
+    # per-sample loop); their owner is kept to the end (flat_views.keep)
+    own = sample_work(n)
+    wk = work_views(own)  # one set of work arrays for every hypothesis and sample
+    Gm, Mm = wk.Gm, wk.Mm  # the masked pseudo-inverse of the pattern `have`
+    for h in range(nh):  # hypothesis by hypothesis (each has its own state), sample by sample
+        mask, q_h, Pa, Pp, Qa = masks[h], q[h], Phi_aa[h], Phi_ap[h], Q_aa[h]
+        have, have_ok, undet, moved, h_last = -1, False, False, False, 0.0
+        for k in range(a, z):
+            dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
+            n_act, bits = active_gyros(mask, st[k], wk.active)
             G, Mi = Gp, Minv
             if n_act < n:
-                if bits != have[h]:  # A is constant over the call: one pseudo-inverse per pattern
-                    have[h], have_ok[h] = bits, masked_pinv(A, wk.active, Mm[h], Gm[h]) >= 0
-                if not have_ok[h]:
-                    undet[h] = True
+                if bits != have:  # A is constant over the call: one pseudo-inverse per pattern
+                    have, have_ok = bits, masked_pinv(A, wk.active, Mm, Gm) >= 0
+                if not have_ok:
+                    undet = True
                     continue
-                G, Mi = Gm[h], Mm[h]
-            select_increments(wk.active, every.c, every.sg, every.s, wk.c, wk.sg, wk.s)
-            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, q[h], A, W, U_ax, V_ax, Mi, G,
-                             N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y, par_t, acc_i, acc_f,
-                             th_acc, arw_var, wk)
-            th_last[h, 0], th_last[h, 1], th_last[h, 2] = wk.th[0], wk.th[1], wk.th[2]
-            h_last[h], moved[h] = h_k, True
-    for h in range(nh):
-        if undet[h]:
+                G, Mi = Gm, Mm
+            correct_increment_lin(dth_k, h_k, xp, wk.active, wk.c, wk.sg, wk.s)
+            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, q_h, A, W, U_ax, V_ax, Mi, G,
+                             N_none, Pa, Pp, Qa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk)
+            h_last, moved = h_k, True
+        if undet:
             undetermined[h] += 1
-        if moved[h]:  # the body rate of its last sample
+        if moved:  # the body rate of its last sample (θ̂ of that sample is still in wk.th)
             for r in range(3):
-                omega[h, r] = th_last[h, r] / h_last[h]
+                omega[h, r] = wk.th[r] / h_last
     tlast[0] = f[z - 1, COL_T]
     keep(own)
     return z - a

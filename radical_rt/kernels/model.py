@@ -198,18 +198,6 @@ def correct_increment_lin(y, dt, xp, active, c_out, sgn_out, s_out):
         s_out[i] = s
 
 
-@inline_kernel
-def select_increments(active, c_all, sg_all, s_all, c_out, sgn_out, s_out):
-    """:func:`correct_increment_lin` over the gyros ``active`` (n,) bool, from its results over a
-    superset of them (c_all, sg_all, s_all): the same values for the active gyros, zero / zero /
-    one for the others (the FDI bank corrects a sample once for all its hypotheses)."""
-    for i in range(active.shape[0]):
-        if active[i]:
-            c_out[i], sgn_out[i], s_out[i] = c_all[i], sg_all[i], s_all[i]
-        else:
-            c_out[i], sgn_out[i], s_out[i] = 0.0, 0.0, 1.0
-
-
 @kernel
 def increment_jacobian_lin(g, sgn, s, dt, theta, W, U_ax, V_ax, Gp, active, F):
     """F (3, 5n) = ∂theta_hat/∂p̂ in the internal parametrization (b, λ', μ', du', dv').
