@@ -151,11 +151,27 @@ def _interval(t_bus: np.ndarray, wall: np.ndarray, t0: float, t1: float) -> floa
     return float(wall[j - 1] - wall[i - 1]) if i > 0 else float(wall[j - 1])
 
 
-def _process_wall(path: Path, out: Path) -> float:
-    from radical_rt.apps.batch import process
-    t0 = time.perf_counter()
-    process([str(path)], str(out))
-    return time.perf_counter() - t0
+def _process_times(path: Path, out: Path) -> tuple[float, np.ndarray, np.ndarray]:
+    """``radical process`` of one archive (output archive written, in-process): (wall time [s],
+    and after each archive block the log time of its last message [s] and the cumulative wall
+    time [s]; a block is one MCAP chunk, about a second of stream)."""
+    from unittest import mock
+
+    from radical_rt.apps import batch
+    feed_block, clock = batch._feed_block, time.perf_counter
+    t_log: list[float] = []
+    wall: list[float] = []
+
+    def timed(sp, blk, *args, **kwargs):
+        feed_block(sp, blk, *args, **kwargs)
+        if len(blk):
+            t_log.append(float(blk.log_ns[-1]) * 1e-9)
+            wall.append(clock() - w0)
+
+    w0 = clock()
+    with mock.patch.object(batch, "_feed_block", timed):
+        batch.process([str(path)], str(out))
+    return clock() - w0, np.array(t_log), np.array(wall)
 
 
 def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, Any]:
@@ -203,15 +219,25 @@ def run(profile: str = "quick", out_dir: Path | str | None = None) -> dict[str, 
                                            if name in per_trk else None),
                         "extra_us_per_tracker": 1e6 * (float(np.median(v)) - nom) * span / n_trk}
                        for name, v in rows.items()]
-        w_nom = [_process_wall(nominal, Path(tmp) / "out_nom.mcap") for _ in range(max(1, reps // 2))]
-        w_flt = [_process_wall(faulty, Path(tmp) / "out_flt.mcap") for _ in range(max(1, reps // 2))]
+        _process_times(faulty, Path(tmp) / "out_flt.mcap")  # (untimed: loads the block kernel)
+        w_nom, w_flt, i_nom, i_flt = [], [], [], []
+        for _ in range(max(3, reps)):  # (back to back, as the rows above)
+            for w_all, w_int, path, name in ((w_nom, i_nom, nominal, "nom"),
+                                             (w_flt, i_flt, faulty, "flt")):
+                total, tb, w = _process_times(path, Path(tmp) / f"out_{name}.mcap")
+                w_all.append(total)
+                w_int.append(_interval(tb, w, t0, t1))
         res["process"] = {"nominal_s": float(np.median(w_nom)), "fault_s": float(np.median(w_flt)),
                           "ratio": float(np.median(w_flt) / np.median(w_nom)),
-                          "bank_fraction_of_run": (t1 - t0) / duration}
-    x = next(r for r in res["rows"] if r["name"] == "compiled bank")["x_nominal"]
-    # (smoke: too short an interval to judge; ok None = not checked)
-    res["checks"] = [{"name": "bank-active run ≤ 1.5× nominal",
-                      "ok": None if profile == "smoke" else bool(x <= 1.5)}]
+                          "bank_fraction_of_run": (t1 - t0) / duration,
+                          "interval_x_nominal": float(np.median(i_flt) / np.median(i_nom)),
+                          "interval_x_nominal_per_rep": [x / y for x, y in zip(i_flt, i_nom,
+                                                                               strict=True)]}
+    x = res["process"]["interval_x_nominal"]
+    # the issue's aim: the run with the bank active at ≥ 0.7× the nominal speed (≤ 1/0.7× its
+    # time), for `radical process` over the bank's interval (smoke: too short to judge, None)
+    res["checks"] = [{"name": "radical process, bank active ≤ 1/0.7 × nominal time",
+                      "ok": None if profile == "smoke" else bool(x <= 1.0 / 0.7)}]
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -231,9 +257,12 @@ def markdown(res: dict[str, Any]) -> str:
         lines.append(f"| {r['name']} | {r['ms_per_s']:.2f} | {r['x_nominal']:.2f}{spread} | {us} | "
                      f"{r['extra_us_per_tracker']:.0f} |")
     p = res["process"]
-    lines += ["", f"`radical process` (whole run): nominal {p['nominal_s']:.2f} s, fault "
-              f"{p['fault_s']:.2f} s (× {p['ratio']:.2f}; the bank runs for "
-              f"{100 * p['bank_fraction_of_run']:.0f} % of the stream)."]
+    per = p["interval_x_nominal_per_rep"]
+    lines += ["", f"`radical process` (whole run, output archive written): nominal "
+              f"{p['nominal_s']:.2f} s, fault {p['fault_s']:.2f} s (× {p['ratio']:.2f}; the bank "
+              f"runs for {100 * p['bank_fraction_of_run']:.0f} % of the stream); over the bank's "
+              f"interval × {p['interval_x_nominal']:.2f} nominal ({min(per):.2f}–{max(per):.2f}), "
+              f"{1.0 / p['interval_x_nominal']:.2f}× the nominal speed."]
     return "\n".join(lines) + "\n"
 
 

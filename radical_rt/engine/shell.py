@@ -136,16 +136,19 @@ class LoopShell:
         """What a kernel that calls :func:`radical_rt.engine.loop.run_release` itself (the
         stream's block intake) needs for up to ``samples`` gyro samples and ``trackers`` tracker
         samples released, with room made in the FDI's histories; None when those calls must be
-        this shell's (the FDI's bank runs, or its window hook has work after every tracker
-        sample). Sets the configuration that follows the collaborators (:meth:`_call_inputs`).
-        Returns (wake_fdi [s], R1, R2, fb, ib, bb, lay, cfg, io, cnt, the idle bank's four
-        arrays, g_f, g_i, g_b, g_end, trk_f, trk_i, trk_end, trk_seq); g_end, trk_end −1: no
-        FDI. :meth:`outside_done` takes the ends back."""
+        this shell's (the FDI's window hook has work after every tracker sample). Sets the
+        configuration that follows the collaborators (:meth:`_call_inputs`). Returns (wake_fdi
+        [s], R1, R2, fb, ib, bb, lay, cfg, io, cnt, the bank's four buffers (the running bank's,
+        FaultMonitor.kernel_bank, with its history end as of now: the kernel sets it before each
+        release, fdi_bank_pack.bank_set_end; else the idle bank's), g_f, g_i, g_b, g_end, trk_f,
+        trk_i, trk_end, trk_seq); g_end, trk_end −1: no FDI. :meth:`outside_done` takes the ends
+        and the bank's steps back."""
         bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
-        if bank is not None or every:
+        if every:
             return None
         self._set_collaborators(every, fdi_on)
         fdi = self.fdi
+        bk = self._no_bank
         if fdi is None:
             hist = (self._no_hist, self._no_hist_i, self._no_hist_b, -1, self._no_trk_f,
                     self._no_trk_i, -1, 0)
@@ -154,14 +157,19 @@ class LoopShell:
             g_f, g_i, g_b, _i0, g_end = fdi.gbuf.blocks()
             trk_f, trk_i = fdi.trk.reserve(trackers)
             hist = (g_f, g_i, g_b, g_end, trk_f, trk_i, fdi.trk.end, fdi.trk_seq)
+            if bank is not None:  # (after the reserve: its rows may have moved)
+                bk = bank.kernel_args(self, fdi.gbuf, g_end, trackers, fdi.llr_threshold(self))
+        self._outside_bank = bank
         return (wake_fdi, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
-                self._ib, self._bb, self._lay, self._cfg, self._io, self._cnt,
-                *self._no_bank) + hist
+                self._ib, self._bb, self._lay, self._cfg, self._io, self._cnt, *bk) + hist
 
     def outside_done(self, g_end: int, trk_end: int, trk_seq: int, called: bool) -> None:
         """After a kernel's own calls (:meth:`outside_calls`): the FDI histories' new ends and
         sequence number; ``called``: whether it made any (their counts are taken when read;
         an attitude reset among them clears the excitation monitor, :meth:`_call_done`)."""
+        bank, self._outside_bank = self._outside_bank, None
+        if bank is not None:
+            bank.kernel_done()
         fdi = self.fdi
         if fdi is not None:
             fdi.gbuf.end, fdi.trk.end, fdi.trk_seq = g_end, trk_end, trk_seq
@@ -169,6 +177,7 @@ class LoopShell:
             self._undrained = True
             self._call_done()
 
+    _outside_bank = None  # the bank handed to the kernel of the last outside_calls
     # stand-ins for the FDI history blocks of loop.run_release when there is no history
     _no_hist, _no_hist_i, _no_hist_b = np.zeros((0, 7)), np.zeros(0, np.int64), np.zeros(0, np.bool_)
     # ... and for the FDI bank when none runs in the kernel

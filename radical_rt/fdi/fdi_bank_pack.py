@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
-from radical_rt.fdi.fdi_bank import BI_ON, BK_SLOTS, bank_sample
+from radical_rt.fdi.fdi_bank import BI_END, BI_ON, BK_SLOTS, bank_sample
 from radical_rt.kernels.flat_views import view1, view2, view3
 
 #: the packed slots: every entry of BK_SLOTS but the history blocks, in BK_SLOTS order
@@ -89,6 +89,14 @@ bank_unpack = inline_kernel(_generated_unpack())
 def bank_on(bib, blay):
     """Whether a bank runs in the release: its control bi[BI_ON] in the int64 buffer."""
     return bib[blay[_BI_ROW, 0] + BI_ON] != 0
+
+
+@inline_kernel
+def bank_set_end(bib, blay, end):
+    """The running bank's history end (control bi[BI_END]: rows in use up to end−1) in the int64
+    buffer: a kernel that makes several releases in one call (the stream's block intake) sets
+    it before each, after the rows that release appends."""
+    bib[blay[_BI_ROW, 0] + BI_END] = end
 
 
 @kernel

@@ -56,6 +56,7 @@ from radical_rt.engine.loop_layout import (
     IO_MODE,
     IO_T,
 )
+from radical_rt.fdi.fdi_bank_pack import bank_on, bank_set_end
 from radical_rt.kernels.flat_views import borrow
 from radical_rt.stream.packets import MAX_SIRU_BATCH
 from radical_rt.stream.siru_wire import WIRE_OK, siru_intake
@@ -197,6 +198,8 @@ def _call(k, z, e, n_ev, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q
     trk_seq = bi[BI_TRK_SEQ] if trk_end >= 0 else 0
     q_end = bi[BI_GQ_END] if ask else 0
     gaps0 = cnt[CNT_GAPS]
+    if g_end >= 0 and bank_on(bib, blay):  # a running bank reads the rows this call appends
+        bank_set_end(bib, blay, g_end + z - k)
     reason, k_stop, e_stop, stage = run_release(
         q_t, q_dt, q_dth, q_st, q_br, q_ve, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb, ib, bb, lay,
         cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end, cI, cF, bfb, bib, bbb, blay, sig_t,
