@@ -17,4 +17,8 @@ def test_bench_fdi_bank_smoke(tmp_path):
     assert comp["ms_per_s"] > 0.0
     assert any((r.get("us_per_tracker") or 0.0) > 0.0 for r in res["rows"])
     assert res["checks"][0]["ok"] is None  # too short to judge the speed
-    assert "× nominal" in bench_fdi_bank.markdown(res)
+    assert res["process"]["nominal_s"] > 0.0 and res["process"]["fault_s"] > 0.0
+    x = res["process"]["interval_x_nominal"]  # (None when the interval is within one block)
+    assert x is None or (x > 0.0 and len(res["process"]["interval_x_nominal_per_rep"]) >= 3)
+    md = bench_fdi_bank.markdown(res)
+    assert "× nominal" in md and "`radical process`" in md
