@@ -11,7 +11,7 @@ test says so, the release. A release is :func:`radical_rt.stream.tracker_queue.r
 one :func:`radical_rt.engine.loop.run_release` call with the inputs Python's shell gives it
 (:meth:`radical_rt.engine.shell.LoopShell.release`): σ of the time line from the clock's state
 (:func:`radical_rt.clock.clock_timing.tag_sigma`), the wake times of the stream's flags rule
-(:func:`stream_wake`, the rule of :meth:`radical_rt.stream.outputs.StreamOutputs.wake`), the FDI's
+(:func:`radical_rt.stream.stream_rules.stream_wake`, the rule of :meth:`radical_rt.stream.outputs.StreamOutputs.wake`), the FDI's
 gyro and tracker histories appended in place.
 
 It returns to Python (status B_*, with ``next`` the message concerned) wherever Python has work:
@@ -41,20 +41,14 @@ from __future__ import annotations
 import math
 
 from radical_rt._jit import kernel
-from radical_rt.clock.clock_layout import F_ANOM_UNTIL, F_TAU_NOW
 from radical_rt.clock.clock_timing import tag_sigma
 from radical_rt.contract.conventions import SIRU_TT_WRAP
 from radical_rt.contract.flags import Flag
-from radical_rt.engine.engine_layout import E_INDEX, unpack
-from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.engine.engine_layout import E_INDEX
 from radical_rt.engine.loop import R_DONE, run_release
 from radical_rt.engine.loop_layout import (
-    CNT_FLAGS,
     CNT_GAPS,
     CNT_TRK_ADDED,
-    IO_ATT_VALID,
-    IO_MODE,
-    IO_T,
 )
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_set_end
 from radical_rt.kernels.flat_views import borrow
@@ -62,17 +56,12 @@ from radical_rt.stream.packets import MAX_SIRU_BATCH
 from radical_rt.stream.siru_wire import WIRE_OK, siru_intake
 from radical_rt.stream.stream_layout import (
     BF_INPUT_GAP,
-    BF_LAST_REJECT,
     BF_LATENCY,
     BF_MIN_INTERVAL,
     BF_PREV,
-    BF_REJECT_HOLD,
     BF_SLACK,
     BF_T_IN,
     BF_T_NOW,
-    BF_WAKE_E,
-    BF_WAKE_FDI,
-    BF_WAKE_T,
     BI_CHUNK,
     BI_CODE,
     BI_CONFLICT,
@@ -80,8 +69,6 @@ from radical_rt.stream.stream_layout import (
     BI_G_END,
     BI_GQ_END,
     BI_GQ_HEAD,
-    BI_GUARD_FLAGS,
-    BI_LAST_FLAGS,
     BI_MAX_BRIDGE,
     BI_MAX_PAYLOAD,
     BI_N_GYRO,
@@ -93,13 +80,11 @@ from radical_rt.stream.stream_layout import (
     BI_RK,
     BI_RN,
     BI_ROWS,
-    BI_ROWS_OK,
     BI_RPRED,
     BI_RREASON,
     BI_RSTAGE,
     BI_RZ,
     BI_SAMPLE_PACKETS,
-    BI_SIRU_LEFT,
     BI_SIRU_M,
     BI_STATUS,
     BI_TOOK,
@@ -113,6 +98,7 @@ from radical_rt.stream.stream_layout import (
     SS_T_IN,
     SS_T_MAX,
 )
+from radical_rt.stream.stream_rules import siru_done, stream_wake
 from radical_rt.stream.tracker_queue import IN_RELEASE, PLAN_GO, release_plan, tracker_intake
 
 #: message topic codes (T_OTHER: anything else, e.g. temp: always Python's)
@@ -124,36 +110,6 @@ _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECT
 # positions in the engine's tuple of views (radical_rt.engine.engine_layout)
 _Q, _OMEGA, _EXCLUDED = E_INDEX["q"], E_INDEX["omega"], E_INDEX["excluded"]
 _XP, _A, _GP = E_INDEX["xp"], E_INDEX["A"], E_INDEX["Gp"]
-
-
-@kernel
-def stream_flags(bi, bf, ss, io, cnt, clock_F):
-    """The stream's flags (:attr:`radical_rt.stream.outputs.StreamOutputs.flags`): the engine's,
-    CLOCK_ANOMALY from the clock's state, the INPUT_REJECTED hold, the guards' BI_GUARD_FLAGS
-    (constant while no guard is live, which the caller makes sure of)."""
-    flags = cnt[CNT_FLAGS]
-    if clock_F[F_TAU_NOW] < clock_F[F_ANOM_UNTIL]:
-        flags |= _CLOCK_ANOMALY
-    last_reject = bf[BF_LAST_REJECT]
-    if io[IO_T] - last_reject <= bf[BF_REJECT_HOLD] or ss[SS_T_MAX] == last_reject:
-        flags |= _INPUT_REJECTED
-    return flags | bi[BI_GUARD_FLAGS]
-
-
-@kernel
-def stream_wake(bi, bf, ss, io, cnt, clock_F):
-    """The wake times (event time, engine time [s]) of the stream's hooks for a compiled call:
-    :meth:`radical_rt.stream.outputs.StreamOutputs.wake` with the FDI's wake time folded in, as
-    :meth:`radical_rt.engine.shell.LoopShell._call_inputs` gives them: −inf for both when the
-    stream's flags (:func:`stream_flags`) differ from the last fault message's."""
-    last = bi[BI_LAST_FLAGS]
-    if stream_flags(bi, bf, ss, io, cnt, clock_F) != last:
-        return -math.inf, -math.inf
-    last_reject = bf[BF_LAST_REJECT]
-    wake_e = bf[BF_WAKE_E]
-    if last & _INPUT_REJECTED and ss[SS_T_MAX] != last_reject:
-        wake_e = min(wake_e, last_reject + bf[BF_REJECT_HOLD] - 1e-6)
-    return bf[BF_WAKE_T], min(wake_e, bf[BF_WAKE_FDI])
 
 
 @kernel
@@ -220,78 +176,6 @@ def _call(k, z, e, n_ev, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q
 
 
 @kernel
-def _due(sp_f, sp_i, s, t):
-    """PacketSpec.due of sample-triggered packet s at sample time t [s]: sp_f (S, 2) next time
-    [s], period [s] (0: none); sp_i (S, 2) decimation (0: none), windows counted (in/out)."""
-    dec = sp_i[s, 0]
-    if dec > 0:
-        sp_i[s, 1] += 1
-        if sp_i[s, 1] >= dec:
-            sp_i[s, 1] = 0
-            return True
-        return False
-    if t >= sp_f[s, 0]:
-        sp_f[s, 0] = t + 0.95 * sp_f[s, 1]
-        return True
-    return False
-
-
-@kernel
-def _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
-                 q_st, fb, ib, bb, lay):
-    """The sample-triggered packets due at the newest sample (StreamOutputs._sample_outputs): a
-    row each (BI_ROWS of them so far) of rows_f (R, 8): t [s], q_body_from_inertial (4,),
-    omega_body (3,) [rad/s] predicted to the newest sample (the release's prediction, else
-    StreamOutputs.now's); rows_i (R, 3): the packet's index, the stream's flags, the mode code."""
-    t_now = bf[BF_T_NOW]
-    first = -1
-    for s in range(sp_f.shape[0]):
-        if not _due(sp_f, sp_i, s, t_now):
-            continue
-        r = bi[BI_ROWS]
-        bi[BI_ROWS] = r + 1
-        rows_i[r, 0] = s
-        if first >= 0:  # (one prediction for the packets of one sample)
-            rows_i[r, 1], rows_i[r, 2] = rows_i[first, 1], rows_i[first, 2]
-            for c in range(8):
-                rows_f[r, c] = rows_f[first, c]
-            continue
-        first = r
-        rows_i[r, 1] = stream_flags(bi, bf, ss, io, cnt, cF)
-        rows_i[r, 2] = int(io[IO_MODE])
-        row = rows_f[r]
-        if pred[0] == 2.0:
-            for c in range(8):
-                row[c] = pred[1 + c]
-            continue
-        E = unpack(fb, ib, bb, lay)
-        q, omega = row[1:5], row[5:8]
-        for c in range(4):
-            q[c] = E[_Q][c]
-        for c in range(3):
-            omega[c] = E[_OMEGA][c]
-        row[0] = io[IO_T]
-        if io[IO_ATT_VALID] != 0.0:
-            row[0] = predict_pending(q_dth, q_dt, q_st, bi[BI_GQ_HEAD], bi[BI_GQ_END], t_now, cI,
-                                     cF, E[_EXCLUDED], E[_XP], E[_A], E[_GP], q, omega)
-
-
-@kernel
-def _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt, q_st,
-               fb, ib, bb, lay):
-    """After a siru message's release: its sample-triggered packets (rows, or B_SIRU: Python's),
-    and B_SIRU when the call has taken as many siru messages as the caller made room for;
-    else B_END (go on)."""
-    if bi[BI_ROWS_OK] == 0:
-        return B_SIRU  # its sample-triggered packets are Python's
-    if bi[BI_NEW_SAMPLE] != 0:
-        _sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
-                     q_st, fb, ib, bb, lay)
-    bi[BI_SIRU_LEFT] -= 1
-    return B_SIRU if bi[BI_SIRU_LEFT] == 0 else B_END  # (the room made is for so many)
-
-
-@kernel
 def _room(siru, bi, si, w_tbus, q_t, g_f, trk_f):
     """Whether the room the caller made holds what the next message can add: a siru message's
     reads (at most the decoder's capacity, each with its bridged reads) in the gyro queue, the
@@ -319,7 +203,8 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     gyro queue's arrays (BI_GQ_HEAD, BI_GQ_END); acc_i: the engine's window counters; the rest:
     run_release's (g_*: the FDI's gyro history, BI_G_END; trk_*: its tracker history, BI_TRK_END,
     BI_TRK_SEQ; pred: the sample packets' prediction). With BI_ROWS_OK, up to BI_SIRU_LEFT siru
-    messages, each one's sample-triggered packets as rows (:func:`_sample_rows`; sp_f, sp_i:
+    messages, each one's sample-triggered packets as rows (:func:`radical_rt.stream.stream_rules.
+    sample_rows`; sp_f, sp_i:
     their schedule); else one. Sets BI_STATUS and BI_NEXT. The array
     arguments are used as views that own no memory (:func:`radical_rt.kernels.flat_views.borrow`:
     the kernels it calls pass them on without atomic reference counting)."""
@@ -349,8 +234,9 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             bi[BI_STATUS] = B_RESUME
             return
         if i < n and topic[i] == T_SIRU:
-            status = _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
-                                q_dth, q_dt, q_st, fb, ib, bb, lay)
+            if siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
+                         q_st, fb, ib, bb, lay):
+                status = B_SIRU
         if status == B_END:
             i += 1
     elif bi[BI_FINAL] != 0:  # the end of the stream: everything released (no message)
@@ -395,9 +281,9 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             if not done:
                 status = B_RESUME
                 break
-            status = _siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i,
-                                q_dth, q_dt, q_st, fb, ib, bb, lay)
-            if status != B_END:
+            if siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
+                         q_st, fb, ib, bb, lay):
+                status = B_SIRU
                 break
         else:
             j = code
