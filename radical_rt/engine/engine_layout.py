@@ -7,7 +7,8 @@ buffer per array, so that a compiled call takes four arguments instead of 46. Fr
 follow: the packing order and the dtype and rank checks (``EngineState._pack``), the position of
 each array in the tuple ``E`` of :mod:`radical_rt.engine.loop` (:data:`E_INDEX`, ``E_*`` constants),
 and the compiled :func:`unpack` itself, whose source is generated from the table (one ``_v1`` or
-``_v2`` view per slot), so that no position is written by hand.
+``_v2`` view per slot), so that no position is written by hand; likewise the propagation's work
+arrays (:func:`propagation_work`, slots ``pw.*``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import NamedTuple
 
 from radical_rt._jit import inline_kernel
 from radical_rt.kernels.flat_views import view1, view2
+from radical_rt.kernels.propagate import SampleWork
 
 FLOAT, INT, BOOL = 0, 1, 2  # buffer codes: fb, ib, bb
 BUFFER_DTYPES = ("float64", "int64", "bool")
@@ -89,3 +91,17 @@ def _generated_unpack():
 
 
 unpack = inline_kernel(_generated_unpack())
+
+
+def _generated_work():
+    items = ", ".join(f"E[{E_INDEX['pw.' + f]}]" for f in SampleWork._fields)
+    namespace = {"SampleWork": SampleWork}
+    source = f"def propagation_work(E):\n    return SampleWork({items})\n"
+    exec(compile(source, __file__, "exec"), namespace)  # noqa: S102 (source: SLOTS)
+    fn = namespace["propagation_work"]
+    fn.__doc__ = ("The propagation's work arrays (radical_rt.kernels.propagate.SampleWork) from "
+                  "the engine's tuple E: its slots pw.<field>.")
+    return fn
+
+
+propagation_work = inline_kernel(_generated_work())

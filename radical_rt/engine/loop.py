@@ -34,7 +34,7 @@ import numpy as np
 
 from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.flags import Flag
-from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.engine_layout import E_INDEX, propagation_work, unpack
 from radical_rt.engine.events import begin_call
 from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.engine.loop_layout import (
@@ -97,12 +97,7 @@ from radical_rt.engine.steps import (
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_sample_packed
 from radical_rt.fdi.fdi_bank_propagate import append_rows
 from radical_rt.kernels.flat_views import borrow
-from radical_rt.kernels.propagate import (
-    PROP_MASKED,
-    PROP_UNDETERMINED,
-    SampleWork,
-    propagate_window,
-)
+from radical_rt.kernels.propagate import PROP_MASKED, PROP_UNDETERMINED, propagate_window
 from radical_rt.kernels.tracker_model import tracker_rows
 from radical_rt.kernels.ud import decorrelate
 from radical_rt.kernels.updates import (
@@ -126,11 +121,6 @@ _Q, _A = E_INDEX["q"], E_INDEX["A"]
 _W, _UAX = E_INDEX["geo.W"], E_INDEX["geo.U"]
 _VAX, _MINV = E_INDEX["geo.V"], E_INDEX["Minv"]
 _GP, _N = E_INDEX["Gp"], E_INDEX["N"]
-# the propagation's work arrays (radical_rt.kernels.propagate.SampleWork), field by field
-_PW_C, _PW_SG, _PW_S, _PW_GH = (E_INDEX["pw." + f] for f in ("c", "sg", "s", "gh"))
-_PW_TH, _PW_F, _PW_W4, _PW_DQ = (E_INDEX["pw." + f] for f in ("th", "F", "work4", "dq"))
-_PW_ACT, _PW_R, _PW_T = (E_INDEX["pw." + f] for f in ("active", "R", "T"))
-_PW_GM, _PW_MM = E_INDEX["pw.Gm"], E_INDEX["pw.Mm"]
 _PHI_AA, _PHI_AP = E_INDEX["Phi_aa"], E_INDEX["Phi_ap"]
 _Q_AA, _PAR_Y = E_INDEX["Q_aa"], E_INDEX["par_y"]
 _PAR_T, _ACC_I = E_INDEX["par_t"], E_INDEX["acc_i"]
@@ -371,8 +361,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
-    work = SampleWork(E[_PW_C], E[_PW_SG], E[_PW_S], E[_PW_GH], E[_PW_TH], E[_PW_F], E[_PW_W4],
-                      E[_PW_DQ], E[_PW_ACT], E[_PW_R], E[_PW_T], E[_PW_GM], E[_PW_MM])
+    work = propagation_work(E)  # the propagation's work arrays (engine state)
     bank = bank_on(bib, blay)  # a bank runs (its control bi[BI_ON])
     while e < n_ev:
         epoch = ev_f[e, 0]

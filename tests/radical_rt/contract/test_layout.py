@@ -129,6 +129,10 @@ def test_engine_layout_packs_every_slot_as_declared():
         owner = eng if s.owner == "" else getattr(eng, s.owner)
         attr = getattr(eng, "_geo_" + s.name) if s.owner == "geo" else getattr(owner, s.name)
         assert view.shape == attr.shape and np.shares_memory(view, attr), s.key
+    work = EL.propagation_work.py_func(E)  # the propagation's work arrays: the engine's pw.*
+    for name, arr in zip(work._fields, work, strict=True):
+        assert arr is E[EL.E_INDEX["pw." + name]] and np.shares_memory(arr, getattr(eng.pw, name))
+    assert work.Gm.shape == (3, eng.n_gyro) and work.active.dtype == np.bool_
     bad = np.zeros((3, 3), np.int64)
     assert EL.slot_problems(EL.SLOTS[EL.E_INDEX["U"]], bad) == [
         "U: dtype int64, layout says float64"]
