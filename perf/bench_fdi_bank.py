@@ -16,7 +16,7 @@ reads the wall clock after every message. Columns:
 
 * ``bank active [ms per s]``: wall time spent on the messages between the alarm and the isolation
   (bus time) per second of stream, the same interval of the nominal archive for the nominal row;
-* ``× nominal``: that figure over the nominal run's (the issue's target: at most 1.5);
+* ``× nominal``: that figure over the nominal run's;
 * ``bank [µs per tracker sample]``: time inside ``HypothesisBank.advance`` per tracker sample it
   processed (all hypotheses; gyro propagation included), for the rows whose window hook runs the
   bank; the bank the compiled release runs (``FaultMonitor.kernel_bank``) cannot be timed apart;
@@ -29,8 +29,12 @@ reads the wall clock after every message. Columns:
   cost of those hand-overs alone); ``no-op bank, in release`` (the same, kept by the release
   without any bank arithmetic: what the alarm and the fault cost besides the bank); ``Python bank`` (the oracle of tests/oracles/fdi_bank_py.py,
   the implementation before the bank was compiled, in the hook; one repetition).
-* ``radical process [s]``: the whole run with :func:`radical_rt.apps.batch.process` (output archive
-  written), nominal and fault archive, and their ratio.
+* ``radical process``: the whole run with :func:`radical_rt.apps.batch.process` (output archive
+  written, block intake: what a user runs), nominal and fault archive, their ratio, and the
+  ratio over the bank's interval (the stream's newest sample time against the wall clock after
+  each block of messages, about a second of stream; ≥ 3 repetitions, back to back, after an
+  untimed run). The check: that interval ratio ≤ 1/0.7 (the issue's aim, the bank-active run at
+  ≥ 0.7× the nominal speed).
 
 The medians over the repetitions are reported; the rows of one repetition run back to back, so
 the ratios survive a busy machine better than the absolute figures. JIT compilation is not
