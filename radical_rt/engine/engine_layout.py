@@ -93,8 +93,13 @@ def _generated_unpack():
 unpack = inline_kernel(_generated_unpack())
 
 
+#: the slots of the propagation's work arrays, in SampleWork's field order
+_PW_SLOTS = [s for s in SLOTS if s.owner == "pw"]
+assert tuple(s.name for s in _PW_SLOTS) == tuple(SampleWork.__annotations__), "pw.* slots"
+
+
 def _generated_work():
-    items = ", ".join(f"E[{E_INDEX['pw.' + f]}]" for f in SampleWork._fields)
+    items = ", ".join(f"E[{E_INDEX[s.key]}]" for s in _PW_SLOTS)
     namespace = {"SampleWork": SampleWork}
     source = f"def propagation_work(E):\n    return SampleWork({items})\n"
     exec(compile(source, __file__, "exec"), namespace)  # noqa: S102 (source: SLOTS)
