@@ -6,8 +6,9 @@ block f (m, 3 + n) with columns COL_T, COL_DT [s], COL_VAR [rad²], COL_DTH.. (d
 int64 block of gyro-invalid bits and a bool block (bridged); :func:`append_rows` fills it and
 :func:`rows_after` finds a time range. :func:`bank_propagate` takes all hypotheses (stacked arrays
 of :mod:`radical_rt.fdi.fdi_bank`) through a run of buffered gyro samples with the engine's own
-per-sample propagation (:func:`radical_rt.kernels.propagate.propagate_sample`, the hypothesis's
-exclusion mask, the snapshot calibration in the internal units of :mod:`radical_rt.kernels.model`)
+propagation (:func:`radical_rt.kernels.propagate.propagate_window` with the hypothesis's exclusion
+mask as the commanded exclusions, the snapshot calibration in the internal units of
+:mod:`radical_rt.kernels.model`, no parity sums)
 and composes each hypothesis's transition; :func:`bank_flush` applies it to the covariance blocks
 (Schmidt time update; Schmidt 1966, Bierman 1977 ch. VIII) and :func:`transition_clear` tells
 when that would change nothing. The tracker update, the per-sample step and the decision are in
@@ -17,9 +18,7 @@ when that would change nothing. The tracker update, the per-sample step and the 
 from __future__ import annotations
 
 from radical_rt._jit import kernel
-from radical_rt.kernels.flat_views import keep
-from radical_rt.kernels.model import correct_increment_lin, masked_pinv
-from radical_rt.kernels.propagate import active_gyros, propagate_sample, sample_work, work_views
+from radical_rt.kernels.propagate import PROP_UNDETERMINED, propagate_window, sample_work
 
 #: columns of the gyro history's float block (radical_rt.fdi.fdi_history.SampleBuffer): t, dt, var_extra, dθ
 COL_T, COL_DT, COL_VAR, COL_DTH = 0, 1, 2, 3
@@ -72,43 +71,25 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     the time of the last sample propagated, and per hypothesis the transition accumulated since
     the last :func:`bank_flush`: Phi_aa (nh, 3, 3), Phi_ap (nh, 3, npar) = ∂θ/∂p, Q_aa (nh, 3, 3)
     (propagate_window composes them sample by sample). undetermined (nh,) int64 += 1 for a call in
-    which a hypothesis met samples with fewer than three usable gyros. Work: par_y, par_t (2, n),
-    acc_i int64 (4,), acc_f, th_acc (3,). Returns the number of samples propagated.
+    which a hypothesis met samples with fewer than three usable gyros (skipped). Work, scratch of
+    propagate_window: par_y, par_t (2, n), acc_i int64 (4,), acc_f, th_acc (3,). Returns the
+    number of gyro samples in the run.
     """
     a, z = rows_after(f, i0, end, tlast[0], t_end)
     if z <= a:
         return 0
     nh, n = masks.shape
-    # work arrays, used through views that own no memory (no atomic reference counts in the
-    # per-sample loop); their owner is kept to the end (flat_views.keep)
-    own = sample_work(n)
-    wk = work_views(own)  # one set of work arrays for every hypothesis and sample
-    Gm, Mm = wk.Gm, wk.Mm  # the masked pseudo-inverse of the pattern `have`
-    for h in range(nh):  # hypothesis by hypothesis (each has its own state), sample by sample
-        mask, q_h, Pa, Pp, Qa = masks[h], q[h], Phi_aa[h], Phi_ap[h], Q_aa[h]
-        have, have_ok, undet, moved, h_last = -1, False, False, False, 0.0
-        for k in range(a, z):
-            dth_k, h_k = f[k, COL_DTH:], f[k, COL_DT]
-            n_act, bits = active_gyros(mask, st[k], wk.active)
-            G, Mi = Gp, Minv
-            if n_act < n:
-                if bits != have:  # A is constant over the call: one pseudo-inverse per pattern
-                    have, have_ok = bits, masked_pinv(A, wk.active, Mm, Gm) >= 0
-                if not have_ok:
-                    undet = True
-                    continue
-                G, Mi = Gm, Mm
-            correct_increment_lin(dth_k, h_k, xp, wk.active, wk.c, wk.sg, wk.s)
-            propagate_sample(dth_k, h_k, f[k, COL_VAR], False, q_h, A, W, U_ax, V_ax, Mi, G,
-                             N_none, Pa, Pp, Qa, par_y, par_t, acc_i, acc_f, th_acc, arw_var, wk)
-            h_last, moved = h_k, True
-        if undet:
+    work = sample_work(n)  # one set of work arrays for every hypothesis
+    dth, dt, var = f[:, COL_DTH:], f[:, COL_DT], f[:, COL_VAR]
+    for h in range(nh):  # hypothesis by hypothesis, each through the engine's own propagation
+        acc_i[0] = 0  # the window count: z − a + 1 never stops the run
+        _, flags = propagate_window(dth, dt, st, br, var, a, z, masks[h], xp, q[h], A, W, U_ax,
+                                    V_ax, Minv, Gp, N_none, Phi_aa[h], Phi_ap[h], Q_aa[h], par_y,
+                                    par_t, acc_i, acc_f, th_acc, z - a + 1, arw_var, omega[h],
+                                    work)
+        if flags & PROP_UNDETERMINED:
             undetermined[h] += 1
-        if moved:  # the body rate of its last sample (θ̂ of that sample is still in wk.th)
-            for r in range(3):
-                omega[h, r] = wk.th[r] / h_last
     tlast[0] = f[z - 1, COL_T]
-    keep(own)
     return z - a
 
 
