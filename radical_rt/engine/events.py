@@ -19,6 +19,7 @@ from radical_rt.engine.loop_layout import (
     IO_MODE,
     IO_SIG_T,
     IO_WAKE_E,
+    IO_WAKE_FDI,
     IO_WAKE_T,
 )
 from radical_rt.engine.steps import (
@@ -35,13 +36,14 @@ _PQ_I = E_INDEX["pq_i"]
 
 
 @inline_kernel
-def begin_call(io, cnt, sig_t, wake_t, wake_e):
+def begin_call(io, cnt, sig_t, wake_t, wake_e, wake_fdi):
     """The start of a compiled call: the collaborators' inputs into io (σ of the time line [s],
-    wake_t and wake_e [s]: see radical_rt.engine.loop) and the flags at the start of the call
+    wake_t, wake_e and wake_fdi [s]: see radical_rt.engine.loop) and the flags at the start of the call
     (CNT_FLAGS0). The rest of the engine's scalar state is kept in io and cnt between calls
     (``LoopShell``: the engine's attributes are views of it); the counters accumulate until
     Python takes them (``LoopShell._drain``)."""
     io[IO_SIG_T], io[IO_WAKE_T], io[IO_WAKE_E] = sig_t, wake_t, wake_e
+    io[IO_WAKE_FDI] = wake_fdi
     cnt[CNT_FLAGS0] = cnt[CNT_FLAGS]
 
 
@@ -59,7 +61,7 @@ def engine_event(code, arg, t_arg, fb, ib, bb, lay, cfg, io, cnt, sig_t):
     open parity sum queued, every queued sum updated, the correction folded), EV_RESET_PARITY
     (the open parity sum dropped), EV_WINDOW_STATE (the flags and the mode after a close at
     event time ``t_arg``, steps.window_state)."""
-    begin_call(io, cnt, sig_t, math.inf, math.inf)
+    begin_call(io, cnt, sig_t, math.inf, math.inf, math.inf)
     E = unpack(fb, ib, bb, lay)
     if code == EV_BEGIN_ATTITUDE_INIT:
         begin_attitude_init(E, io, cnt)

@@ -95,6 +95,10 @@ class ExcitationMonitor:
         """Whether a step is due at engine time t (every ``period_s``; the caller then builds P)."""
         return t >= self._t_last + self.period_s
 
+    def next_step(self) -> float:
+        """The engine time [s] from which :meth:`due` is true."""
+        return self._t_last + self.period_s
+
     def update(self, t: float, P: np.ndarray, q_body_from_inertial: np.ndarray,
                conv_var: np.ndarray, flags: int) -> int:
         """One step at engine time t [s]: P (ns, ns) the covariance (from the UD factors), the

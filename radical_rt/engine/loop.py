@@ -10,10 +10,11 @@ samples. The steps themselves are in :mod:`radical_rt.engine.steps`; they exist 
 
 A call returns to Python only for the window hook (``R_ON_WINDOW``), the Python collaborators'
 turn at a close: the flags differ from those at the start of the call or would change (stale
-trackers, convergence), the mode would change, a parity sum was queued (FDI detector, excitation
-monitor), the event time reached ``wake_t`` (a window packet or diag due) or the engine time
-``wake_e`` (FDI bookkeeping, an INPUT_REJECTED hold ending), with io[IO_WAKE_EVERY] set after every
-tracker sample (an FDI bank the kernel does not run itself), or after a tracker sample at which
+trackers, convergence), the mode would change, the event time reached ``wake_t`` (a window
+packet or diag due) or the engine time ``wake_e`` (an INPUT_REJECTED hold ending) or
+``wake_fdi`` (the FDI's bookkeeping), a parity sum was queued that the FDI does not take in the
+loop (an alarm, a snapshot or an excitation step due, :mod:`radical_rt.fdi.fdi_quiet`), with
+io[IO_WAKE_EVERY] set after every tracker sample (an FDI bank the kernel does not run itself), or after a tracker sample at which
 the bank the kernel runs (argument ``bk``) has its decision due. Python then runs
 ``Engine.on_window`` and calls again from where this call stopped. :func:`engine_event` runs a
 step for Python (commands, checks, the end of a stream) on the same state.
@@ -37,12 +38,12 @@ from radical_rt.contract.flags import Flag
 from radical_rt.engine.engine_layout import E_INDEX, propagation_work, unpack
 from radical_rt.engine.events import begin_call
 from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.engine.handover import window_due
 from radical_rt.engine.loop_layout import (
     CFG_ARW_VAR,
     CFG_EDIT,
     CFG_GATE_NIS,
     CFG_GYRO_GAP,
-    CFG_HOOK_SUM,
     CFG_LAT_COL,
     CFG_LAT_P,
     CFG_PHI_COL,
@@ -59,12 +60,10 @@ from radical_rt.engine.loop_layout import (
     CNT_FIRST_UPDATED,
     CNT_FIRST_VALID,
     CNT_FLAGS,
-    CNT_FLAGS0,
     CNT_GAPS,
     CNT_INVALID_ST,
     CNT_LOCKED_ST,
     CNT_MASKED,
-    CNT_PAR_SUMS,
     CNT_PRE_INIT,
     CNT_STATUS,
     CNT_TRK_ADDED,
@@ -76,15 +75,12 @@ from radical_rt.engine.loop_layout import (
     IO_DIAG_ST1,
     IO_DIAG_ST2,
     IO_LAST_ST,
-    IO_MODE,
     IO_NIS,
     IO_NIS_LOCKED_ST,
     IO_NIS_SUM_ST,
     IO_SIG_T,
     IO_T,
-    IO_WAKE_E,
     IO_WAKE_EVERY,
-    IO_WAKE_T,
 )
 from radical_rt.engine.steps import (
     close_window,
@@ -92,7 +88,6 @@ from radical_rt.engine.steps import (
     init_attitude,
     numeric_fault,
     warm_reset,
-    window_state,
 )
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_sample_packed
 from radical_rt.fdi.fdi_bank_propagate import append_rows
@@ -143,19 +138,7 @@ _ZWBUF, _LBUF = E_INDEX["zwbuf"], E_INDEX["Lbuf"]
 
 
 @inline_kernel
-def _window_due(E, cfg, io, cnt, t_event):
-    """Whether the window hook (Engine.on_window(t_event)) has work after a close: the flags
-    differ from those at the start of the call or would change (:func:`steps.window_state`:
-    stale trackers, convergence), the mode would change, a parity sum was queued (with
-    cfg[CFG_HOOK_SUM]), the event time reached wake_t or the engine time wake_e (see the module
-    docstring)."""
-    f, mode = window_state(E, cfg, io, cnt, t_event)
-    return (f != cnt[CNT_FLAGS0] or mode != io[IO_MODE] or t_event >= io[IO_WAKE_T]
-            or io[IO_T] >= io[IO_WAKE_E] or (cfg[CFG_HOOK_SUM] != 0.0 and cnt[CNT_PAR_SUMS] > 0))
-
-
-@inline_kernel
-def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt, work):
+def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt, fq, work):
     """Samples k..upto−1 of the gyro arrays (t, dt (m,) [s], dth (m, n) [rad], status (m,) int
     bits, bridged (m,) bool, var_extra (m,) [rad²]; work: the propagation's
     radical_rt.kernels.propagate.SampleWork): before an attitude exists only counted; a
@@ -196,13 +179,13 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt,
             if acc_i[0] >= window:
                 close_window(E, cfg, io, cnt)
                 fold(E, io, cnt)
-                if _window_due(E, cfg, io, cnt, io[IO_T]):
+                if window_due(E, cfg, io, cnt, fq, io[IO_T]):
                     return R_ON_WINDOW, k
     return R_DONE, k
 
 
 @inline_kernel
-def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt):
+def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io, cnt, fq):
     """A tracker j (1 or 2) sample at t_epoch [s, gyro time line], q_meas (4,)
     q_st_from_inertial, n_stars, valid, mounting R_nom (3, 3), use_phi (ST2). An invalid sample
     (not valid, or too few stars) is only counted, cnt[CNT_INVALID_ST + j] += 1, with
@@ -269,7 +252,7 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     bit = _ST1_EDITED if j == 1 else _ST2_EDITED
     cnt[CNT_FLAGS] = (cnt[CNT_FLAGS] & ~bit) | (bit if edited else 0)
     fold(E, io, cnt)
-    if io[IO_WAKE_EVERY] != 0.0 or _window_due(E, cfg, io, cnt, t_epoch):
+    if io[IO_WAKE_EVERY] != 0.0 or window_due(E, cfg, io, cnt, fq, t_epoch):
         return R_ON_WINDOW
     return R_DONE
 
@@ -324,8 +307,8 @@ def _book_tracker(j, epoch, q_meas, n_stars, E, cfg, io, cnt, trk_f, trk_i, trk_
 @kernel
 def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb,
                  ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end,
-                 clock_I, clock_F, bfb, bib, bbb, blay, sig_t, wake_t, wake_e, trk_f, trk_i,
-                 trk_end, trk_seq0):
+                 clock_I, clock_F, bfb, bib, bbb, blay, sig_t, wake_t, wake_e, wake_fdi, fq, trk_f,
+                 trk_i, trk_end, trk_seq0):
     """A whole release of the stream processor in one call: for each tracker event e..n_ev−1
     (ev_f (E, 5): epoch [s], q_st_from_inertial (4,); ev_i (E, 3): tracker 1|2, n_stars, valid;
     epochs in order), the gyro samples up to its epoch then the sample; then the gyro samples up
@@ -347,8 +330,10 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     kernel completes goes through :func:`radical_rt.fdi.fdi_bank.bank_sample` as well, and when
     the bank's decision is due the event hands over with R_ON_WINDOW (stage 1), so that Python
     takes the decision at that sample.
-    sig_t: σ of the time line [s]; wake_t, wake_e: see the module docstring (:func:`begin_call`;
-    the engine's other scalar state stays in io and cnt between calls). Every tracker sample
+    sig_t: σ of the time line [s]; wake_t, wake_e, wake_fdi: see the module docstring
+    (:func:`begin_call`; the engine's other scalar state stays in io and cnt between calls);
+    fq: the FDI's array for the parity sums it takes without the hook
+    (:mod:`radical_rt.fdi.fdi_quiet`; zeros when there is no FDI). Every tracker sample
     completed is booked by :func:`_book_tracker` (trk_f, trk_i, trk_end, trk_seq0: the FDI's
     tracker history there). The array arguments are used as views that own no memory
     (:func:`radical_rt.kernels.flat_views.borrow`: no reference counting in the inlined steps)."""
@@ -357,7 +342,8 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
     cfg, io, cnt, g_f, g_i, g_b = borrow(cfg), borrow(io), borrow(cnt), borrow(g_f), borrow(g_i), borrow(g_b)
     pred, clock_I, clock_F, trk_f, trk_i = (borrow(pred), borrow(clock_I), borrow(clock_F),
                                             borrow(trk_f), borrow(trk_i))
-    begin_call(io, cnt, sig_t, wake_t, wake_e)
+    fq = borrow(fq)
+    begin_call(io, cnt, sig_t, wake_t, wake_e, wake_fdi)
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)
@@ -369,12 +355,12 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         while up < z and t[up] <= epoch:
             up += 1
         reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, up, E, cfg, io, cnt,
-                               work)
+                               fq, work)
         if reason != R_DONE:
             return reason, k, e, 0
         j = ev_i[e, 0]
         reason = _tracker_step(j, epoch, ev_f[e, 1:5], ev_i[e, 1], ev_i[e, 2] != 0,
-                               R1 if j == 1 else R2, j == 2, E, cfg, io, cnt)
+                               R1 if j == 1 else R2, j == 2, E, cfg, io, cnt, fq)
         _book_tracker(j, epoch, ev_f[e, 1:5], ev_i[e, 1], E, cfg, io, cnt, trk_f, trk_i, trk_end,
                       trk_seq0)
         # the bank takes every sample whose update the kernel completed, also one after which
@@ -387,7 +373,8 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         if reason != R_DONE:
             return reason, k, e, 1
         e += 1
-    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt, work)
+    reason, k = _gyro_step(t, dt, dth, status, bridged, var_extra, k, z, E, cfg, io, cnt, fq,
+                           work)
     if reason == R_DONE and pred[0] == 1.0 and io[IO_ATT_VALID] != 0.0:  # else now() does it
         q, omega = E[_Q], E[_OMEGA]
         q_p, omega_p = pred[2:6], pred[6:9]

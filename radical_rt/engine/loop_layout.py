@@ -48,6 +48,12 @@ IO_LOCKED_SINCE = IO.add("locked_since", unit="s", doc="lock latch (in/out; inf:
 IO_SIG_T = IO.add("sig_t", unit="s", doc="sigma of the time line")
 IO_WAKE_T = IO.add("wake_t", unit="s", doc="event time from which the window hook has work")
 IO_WAKE_E = IO.add("wake_e", unit="s", doc="engine time from which the window hook has work")
+IO_WAKE_FDI = IO.add("wake_fdi", unit="s", doc="engine time from which the FDI's bookkeeping is "
+                                               "due (in/out: a sum taken for it moves it)")
+IO_EX_NEXT = IO.add("ex_next", unit="s", doc="engine time of the excitation monitor's next step "
+                                             "(inf: none; caller)")
+IO_GEN0 = IO.add("gen0", doc="gaps + attitude inits counted (CNT_GAPS + CNT_ATT_INITS) when the "
+                             "FDI last looked (caller)")
 IO_LAST_ST1 = IO.add("last_st1", unit="s", doc="last valid ST1 epoch (-inf: none)")
 IO_LAST_ST2 = IO.add("last_st2", unit="s", doc="last valid ST2 epoch (-inf: none)")
 IO_MODE = IO.add("mode", doc="the engine's mode code (MODE_*; -1: init)")

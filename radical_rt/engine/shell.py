@@ -24,6 +24,7 @@ from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY
 from radical_rt.engine.events import EV_WINDOW_STATE, engine_event
 from radical_rt.engine.steps import NUMERIC_GEOMETRY
 from radical_rt.fdi.fdi_hypotheses import idle_kernel_args
+from radical_rt.fdi.fdi_quiet import Q_TAKEN, QF
 
 ST_KIND = {1: "st1", 2: "st2"}
 ST_CONSIDER = {1: "st1_consider", 2: "st2_consider"}  # counter of considered updates
@@ -104,13 +105,13 @@ class LoopShell:
                 g_f, g_i, g_b = hist.blocks()[:3]
             if trk is not None:
                 trk_f, trk_i = trk.reserve(n_ev - e)
-            sig_t, wake_t, wake_e = self._call_inputs(wake_fdi, every, fdi_on)
+            sig_t, wake_t, wake_e = self._call_inputs(every, fdi_on)
             reason, k, e_stop, stage = run(
                 t, dt, dtheta, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_ev, R1, R2,
                 self._fb, self._ib, self._bb, self._lay, self._cfg, io, cnt, g_f, g_i, g_b,
                 g_end, pred, q_end, clock_I, clock_F, bk[0], bk[1], bk[2], bk[3], sig_t, wake_t,
-                wake_e, trk_f, trk_i, -1 if trk is None else trk.end,
-                0 if trk is None else fdi.trk_seq)
+                wake_e, wake_fdi, self._no_fq if fdi is None else fdi.fq, trk_f, trk_i,
+                -1 if trk is None else trk.end, 0 if trk is None else fdi.trk_seq)
             self._undrained = True  # the counters of the call: taken when Python reads them
             if bank is not None:
                 bank.kernel_done()
@@ -138,7 +139,7 @@ class LoopShell:
         samples released, with room made in the FDI's histories; None when those calls must be
         this shell's (the FDI's window hook has work after every tracker sample). Sets the
         configuration that follows the collaborators (:meth:`_call_inputs`). Returns (wake_fdi
-        [s], R1, R2, fb, ib, bb, lay, cfg, io, cnt, the bank's four buffers (the running bank's,
+        [s], the FDI's array of the sums it takes in the loop (radical_rt.fdi.fdi_quiet), R1, R2, fb, ib, bb, lay, cfg, io, cnt, the bank's four buffers (the running bank's,
         FaultMonitor.kernel_bank, with its history end as of now: the kernel sets it before each
         release, fdi_bank_pack.bank_set_end; else the idle bank's), g_f, g_i, g_b, g_end, trk_f,
         trk_i, trk_end, trk_seq); g_end, trk_end −1: no FDI. :meth:`outside_done` takes the ends
@@ -146,7 +147,6 @@ class LoopShell:
         bank, wake_fdi, every, fdi_on = self._fdi_release_inputs()
         if every:
             return None
-        self._set_collaborators(every, fdi_on)
         fdi = self.fdi
         bk = self._no_bank
         if fdi is None:
@@ -160,7 +160,8 @@ class LoopShell:
             if bank is not None:  # (after the reserve: its rows may have moved)
                 bk = bank.kernel_args(self, fdi.gbuf, g_end, trackers, fdi.llr_threshold(self))
         self._outside_bank = bank
-        return (wake_fdi, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
+        self._set_collaborators(every, fdi_on)  # (last: IO_GEN0 as of the call)
+        return (wake_fdi, self._no_fq if fdi is None else fdi.fq, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
                 self._ib, self._bb, self._lay, self._cfg, self._io, self._cnt, *bk) + hist
 
     def outside_done(self, g_end: int, trk_end: int, trk_seq: int, called: bool) -> None:
@@ -186,10 +187,11 @@ class LoopShell:
     _no_pred, _no_clock_I, _no_clock_F = np.zeros(9), np.zeros(0, np.int64), np.zeros(0)
     # ... and for the FDI's tracker history when there is no FDI
     _no_trk_f, _no_trk_i = np.zeros((0, 5)), np.zeros((0, 3), np.int64)
+    # ... and for the FDI's array of the sums it takes in the loop (never on)
+    _no_fq = np.zeros(QF.end)
 
     # ---------------------------------------------------------------- kernel state
-    def _call_inputs(self, wake_fdi: float, every: bool, fdi_on: bool) -> tuple[float, float,
-                                                                                 float]:
+    def _call_inputs(self, every: bool, fdi_on: bool) -> tuple[float, float, float]:
         """The collaborators' inputs of a compiled call: σ of the time line [s] and the wake
         times wake_t, wake_e [s] (the hooks': the stream's packets and flags; the FDI's
         ``wake_fdi``). Also sets the configuration that follows the collaborators:
@@ -200,7 +202,7 @@ class LoopShell:
         False). The rest of the scalar state stays in io and cnt between calls."""
         wake_t, wake_e = self.hooks.wake()
         self._set_collaborators(every, fdi_on)
-        return self.timing_sigma(), wake_t, min(wake_e, wake_fdi)
+        return self.timing_sigma(), wake_t, wake_e
 
     def _fdi_release_inputs(self) -> tuple:
         """:meth:`radical_rt.fdi.monitor.FaultMonitor.release_inputs` (bank, wake time, window
@@ -209,17 +211,25 @@ class LoopShell:
         return (None, math.inf, False, False) if fdi is None else fdi.release_inputs(self)
 
     def _set_collaborators(self, every: bool, fdi_on: bool) -> None:
-        """The configuration that follows the collaborators (see :meth:`_call_inputs`)."""
-        self._io[FL.IO_WAKE_EVERY] = 1.0 if every else 0.0
+        """The configuration that follows the collaborators (see :meth:`_call_inputs`), and
+        for the parity sums the FDI may take in the loop (loop._take_sum) the excitation
+        monitor's next step (IO_EX_NEXT) and the restarts counted as the FDI saw them
+        (IO_GEN0: right before the call, the counters not taken since)."""
+        io, cnt, ex = self._io, self._cnt, self.excitation
+        io[FL.IO_WAKE_EVERY] = 1.0 if every else 0.0
+        io[FL.IO_EX_NEXT] = math.inf if ex is None else ex.next_step()
+        io[FL.IO_GEN0] = cnt.item(FL.CNT_GAPS) + cnt.item(FL.CNT_ATT_INITS)
         cfg = self._cfg
         cfg[FL.CFG_FDI_ON] = 1.0 if fdi_on else 0.0
         cfg[FL.CFG_HOOK_SUM] = 1.0 if self.fdi is not None or self.excitation is not None else 0.0
 
     def _call_done(self) -> None:
         """After a compiled call, what cannot wait until Python reads the bookkeeping: the FDI's
-        tracker history grows by the rows the kernel appended, and an attitude reset clears the
-        excitation monitor."""
+        tracker history grows by the rows the kernel appended, the FDI keeps the records of the
+        parity sums it took in the loop, and an attitude reset clears the excitation monitor."""
         cnt = self._cnt
+        if self.fdi is not None and self.fdi.fq.item(Q_TAKEN):
+            self.fdi.sums_taken()
         added = cnt.item(FL.CNT_TRK_ADDED)
         if added:
             cnt[FL.CNT_TRK_ADDED] = 0

@@ -43,6 +43,7 @@ from radical_rt.contract.conventions import SIRU_PERIOD_S
 from radical_rt.contract.flags import GYRO_FAILED, Flag
 from radical_rt.fdi.fdi_detect import (
     CUSUM_SHIFT,
+    DTH,
     PERSIST_M,
     ParityDetector,
     Thresholds,
@@ -54,6 +55,18 @@ from radical_rt.fdi.fdi_detect import (
 )
 from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot, TrackerBuffer
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
+from radical_rt.fdi.fdi_quiet import (
+    Q_CHECK_S,
+    Q_DET,
+    Q_LAST,
+    Q_ON,
+    Q_RING,
+    Q_SNAP_PERIOD,
+    Q_SNAP_T,
+    Q_TAKEN,
+    Q_TH,
+    QF,
+)
 from radical_rt.fdi.monitor_isolation import IsolationSteps
 from radical_rt.fdi.monitor_state import MonitorState
 
@@ -83,6 +96,10 @@ class FaultMonitor(IsolationSteps, MonitorState):
     def __init__(self) -> None:
         self._th_key = None
         self.det: ParityDetector | None = None
+        # what the engine's compiled loop needs to take parity sums itself (radical_rt.fdi.
+        # fdi_quiet; the detector's statistics live there)
+        self.fq = np.zeros(QF.end)
+        self.fq[Q_SNAP_PERIOD], self.fq[Q_CHECK_S] = SNAPSHOT_PERIOD_S, CHECK_MAX_S
         self.gbuf = SampleBuffer()
         self.trk = TrackerBuffer()  # the valid tracker samples since the oldest snapshot
         self.trk_seq = 0
@@ -118,7 +135,8 @@ class FaultMonitor(IsolationSteps, MonitorState):
         key = (float(self._p(eng, "false_alarm_per_hr", 1e-3)), t_sum,
                float(self._p(eng, "guard_ratio", 4.0)))
         if key != self._th_key or self.det is None:
-            self.det = ParityDetector(thresholds(key[0], 3600.0 / t_sum), key[2])
+            self.det = ParityDetector(thresholds(key[0], 3600.0 / t_sum), key[2],
+                                      self.fq[Q_DET:Q_TH], self.fq[Q_TH:Q_TH + DTH.end])
             self._th_key = key
         return self.det
 
@@ -189,8 +207,45 @@ class FaultMonitor(IsolationSteps, MonitorState):
 
     def release_inputs(self, eng) -> tuple[HypothesisBank | None, float, bool, bool]:
         """What a compiled call of the engine needs from the FDI, in one call: (the bank it runs,
-        :meth:`kernel_bank`; :meth:`wake_time`; :meth:`wake_on_tracker`; :meth:`enabled`)."""
-        return self.kernel_bank(), self.wake_time(), self.wake_on_tracker(), self.enabled(eng)
+        :meth:`kernel_bank`; :meth:`wake_time`; :meth:`wake_on_tracker`; :meth:`enabled`), and
+        the array :attr:`fq` set for it (:meth:`_quiet_setup`)."""
+        enabled = self.enabled(eng)
+        self._quiet_setup(eng, enabled)
+        return self.kernel_bank(), self.wake_time(), self.wake_on_tracker(), enabled
+
+    def _quiet_setup(self, eng, enabled: bool) -> None:
+        """Whether the compiled loop may take parity sums without the window hook
+        (radical_rt.fdi.fdi_quiet): while monitoring with no bookkeeping pending, the current
+        thresholds, a snapshot, no failed gyro and the generation the monitor has seen (the
+        loop checks that it stays so); with the newest snapshot's time."""
+        fq = self.fq
+        ok = (enabled and self.state == "monitoring" and self.bank is None and not self._sum_seen
+              and bool(self.snaps) and not self.failed_by_fdi and not self.flagged_only
+              and not int(eng.flags) & _ALL_FAILED)
+        if ok:
+            self.detector(eng)  # (thresholds of the current table)
+            ok = eng.generation() == self.gen
+        fq[Q_ON] = 1.0 if ok else 0.0
+        if ok:
+            fq[Q_SNAP_T] = self.snaps[-1].t
+
+    def sums_taken(self) -> None:
+        """The records of the parity sums the compiled loop took (radical_rt.fdi.fdi_quiet), as
+        :meth:`on_parity_sum` and the bookkeeping of :meth:`on_window` keep them: the count,
+        the last ν and ρ, the parity log and the time of the next bookkeeping."""
+        v = self.fq.tolist()
+        n = int(v[Q_TAKEN])
+        if not n:
+            return
+        self.fq[Q_TAKEN] = 0.0
+        self.counts["sums"] += n
+        self.last_nu, self.last_rho, t1 = v[Q_LAST:Q_LAST + 3]
+        log = self.parity_log
+        for k in range(n):
+            log.append((v[Q_RING + 2 * k], v[Q_RING + 2 * k + 1]))
+        while log and log[0][0] < t1 - BUFFER_S:  # (trimmed at t1 once: t0 and t1 increase)
+            log.popleft()
+        self._next_check = t1 + CHECK_MAX_S
 
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker

@@ -172,7 +172,7 @@ class BlockFeed:
         calls = e.outside_calls(len(gq) + new, rows)
         if calls is None:
             return False
-        (wake_fdi, R1, R2, fb, ib, bb, lay, cfg, io, cnt, bfb, bib, bbb, blay, g_f, g_i, g_b,
+        (wake_fdi, fq, R1, R2, fb, ib, bb, lay, cfg, io, cnt, bfb, bib, bbb, blay, g_f, g_i, g_b,
          g_end, trk_f, trk_i, trk_end, trk_seq) = calls
         bi, bf = self._block_controls(chunk, wake_fdi)
         bi[SL.BI_NEXT], bi[SL.BI_GQ_HEAD], bi[SL.BI_GQ_END] = i, gq.head, gq.end
@@ -185,7 +185,7 @@ class BlockFeed:
                      tq.ss, tq.si, tq.ev_f, tq.ev_i, tq.q_work, self._block_q, I, F, OF, OI,
                      tags, gq.t, gq.dt, gq.dtheta, gq.status, gq.bridged, gq.var_extra,
                      e.acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, self._pred,
-                     bfb, bib, bbb, blay, trk_f, trk_i, sp_f, sp_i, rows_f, rows_i)
+                     bfb, bib, bbb, blay, trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq)
         v = bi.tolist()
         if k_siru > 1:
             self._rows_done(v[SL.BI_ROWS])

@@ -62,6 +62,7 @@ from radical_rt.stream.stream_layout import (
     BF_SLACK,
     BF_T_IN,
     BF_T_NOW,
+    BF_WAKE_FDI,
     BI_CHUNK,
     BI_CODE,
     BI_CONFLICT,
@@ -115,7 +116,7 @@ _XP, _A, _GP = E_INDEX["xp"], E_INDEX["A"], E_INDEX["Gp"]
 @kernel
 def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i, R1,
              R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay,
-             trk_f, trk_i):
+             trk_f, trk_i, fq):
     """The stream's release for the watermark t_max − latency − slack, or inf with BI_FINAL (the
     end of a stream) (StreamProcessor._release and LoopShell.release's first call). Returns False when that call stopped before the release
     was complete (BI_R* say where; the caller returns B_RESUME)."""
@@ -135,13 +136,13 @@ def _release(defer, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_
     g_end = bi[BI_G_END] if z > a else -1
     return _call(a, z, e, e1, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br,
                  q_ve, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb,
-                 bib, bbb, blay, trk_f, trk_i)
+                 bib, bbb, blay, trk_f, trk_i, fq)
 
 
 @kernel
 def _call(k, z, e, n_ev, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
           R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay,
-          trk_f, trk_i):
+          trk_f, trk_i, fq):
     """One run_release call of a release (gyro samples k..z−1, tracker rows e..n_ev−1; g_end ≥ 0:
     copy the samples to the FDI's history from that row first; ask: the sample packets'
     prediction) with the shell's inputs (LoopShell._calls) and its bookkeeping after the call.
@@ -159,7 +160,7 @@ def _call(k, z, e, n_ev, g_end, ask, bi, bf, ss, ev_f, ev_i, q_t, q_dt, q_dth, q
     reason, k_stop, e_stop, stage = run_release(
         q_t, q_dt, q_dth, q_st, q_br, q_ve, k, z, ev_f, ev_i, e, n_ev, R1, R2, fb, ib, bb, lay,
         cfg, io, cnt, g_f, g_i, g_b, g_end, pred, q_end, cI, cF, bfb, bib, bbb, blay, sig_t,
-        wake_t, wake_e, trk_f, trk_i, trk_end, trk_seq)
+        wake_t, wake_e, bf[BF_WAKE_FDI], fq, trk_f, trk_i, trk_end, trk_seq)
     bi[BI_RELEASED] = 1
     if g_end >= 0:
         bi[BI_G_END] += z - k
@@ -194,7 +195,7 @@ def _room(siru, bi, si, w_tbus, q_t, g_f, trk_f):
 def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss, si, ev_f, ev_i,
                  q_work, last_q, cI, cF, OF, OI, tags, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i,
                  R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, bfb, bib, bbb, blay,
-                 trk_f, trk_i, sp_f, sp_i, rows_f, rows_i):
+                 trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq):
     """Messages bi[BI_NEXT]..n−1 (buf uint8: their payloads back to back; topic (≥ n,) T_*,
     off, size (≥ n,) int64: each payload's place in buf) through the stream (module docstring),
     until one needs Python. w_*: the siru decoder's column buffers; ss, si, ev_f, ev_i, q_work:
@@ -205,7 +206,8 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     BI_TRK_SEQ; pred: the sample packets' prediction). With BI_ROWS_OK, up to BI_SIRU_LEFT siru
     messages, each one's sample-triggered packets as rows (:func:`radical_rt.stream.stream_rules.
     sample_rows`; sp_f, sp_i:
-    their schedule); else one. Sets BI_STATUS and BI_NEXT. The array
+    their schedule); else one. fq: the FDI's array of the parity sums it takes in the loop
+    (:mod:`radical_rt.fdi.fdi_quiet`). Sets BI_STATUS and BI_NEXT. The array
     arguments are used as views that own no memory (:func:`radical_rt.kernels.flat_views.borrow`:
     the kernels it calls pass them on without atomic reference counting)."""
     buf, topic, off, size, bi = borrow(buf), borrow(topic), borrow(off), borrow(size), borrow(bi)
@@ -219,6 +221,7 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     g_i, g_b, pred, bfb, bib = borrow(g_i), borrow(g_b), borrow(pred), borrow(bfb), borrow(bib)
     bbb, blay, trk_f, trk_i = borrow(bbb), borrow(blay), borrow(trk_f), borrow(trk_i)
     sp_f, sp_i, rows_f, rows_i = borrow(sp_f), borrow(sp_i), borrow(rows_f), borrow(rows_i)
+    fq = borrow(fq)
     bi[BI_RELEASED] = 0
     bi[BI_ROWS] = 0
     bi[BI_SIRU_M] = -1
@@ -230,7 +233,8 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
         bi[BI_RESUME] = 0
         if not _call(bi[BI_RK], bi[BI_RZ], bi[BI_RE], bi[BI_RN], -1, bi[BI_RPRED] != 0, bi, bf,
                      ss, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve, R1, R2, fb, ib, bb, lay,
-                     cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i):
+                     cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i,
+                     fq):
             bi[BI_STATUS] = B_RESUME
             return
         if i < n and topic[i] == T_SIRU:
@@ -242,7 +246,7 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     elif bi[BI_FINAL] != 0:  # the end of the stream: everything released (no message)
         if not _release(False, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
                         acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI, cF,
-                        bfb, bib, bbb, blay, trk_f, trk_i):
+                        bfb, bib, bbb, blay, trk_f, trk_i, fq):
             bi[BI_STATUS] = B_RESUME
             return
     while i < n and status == B_END:
@@ -277,7 +281,7 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
                 break
             done = _release(False, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
                             acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI,
-                            cF, bfb, bib, bbb, blay, trk_f, trk_i)
+                            cF, bfb, bib, bbb, blay, trk_f, trk_i, fq)
             if not done:
                 status = B_RESUME
                 break
@@ -305,7 +309,7 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             if r == IN_RELEASE:
                 done = _release(True, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br,
                                 q_ve, acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b,
-                                pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i)
+                                pred, cI, cF, bfb, bib, bbb, blay, trk_f, trk_i, fq)
                 if not done:
                     status = B_RESUME
                     break

@@ -23,7 +23,6 @@ from radical_rt.stream.stream_layout import (
     BF_REJECT_HOLD,
     BF_T_NOW,
     BF_WAKE_E,
-    BF_WAKE_FDI,
     BF_WAKE_T,
     BI_GQ_END,
     BI_GQ_HEAD,
@@ -59,9 +58,10 @@ def stream_flags(bi, bf, ss, io, cnt, clock_F):
 @kernel
 def stream_wake(bi, bf, ss, io, cnt, clock_F):
     """The wake times (event time, engine time [s]) of the stream's hooks for a compiled call:
-    :meth:`radical_rt.stream.outputs.StreamOutputs.wake` with the FDI's wake time folded in, as
-    :meth:`radical_rt.engine.shell.LoopShell._call_inputs` gives them: −inf for both when the
-    stream's flags (:func:`stream_flags`) differ from the last fault message's."""
+    :meth:`radical_rt.stream.outputs.StreamOutputs.wake`, as
+    :meth:`radical_rt.engine.shell.LoopShell._call_inputs` gives them (the FDI's wake time,
+    BF_WAKE_FDI, goes to the call separately): −inf for both when the stream's flags
+    (:func:`stream_flags`) differ from the last fault message's."""
     last = bi[BI_LAST_FLAGS]
     if stream_flags(bi, bf, ss, io, cnt, clock_F) != last:
         return -math.inf, -math.inf
@@ -69,7 +69,7 @@ def stream_wake(bi, bf, ss, io, cnt, clock_F):
     wake_e = bf[BF_WAKE_E]
     if last & _INPUT_REJECTED and ss[SS_T_MAX] != last_reject:
         wake_e = min(wake_e, last_reject + bf[BF_REJECT_HOLD] - 1e-6)
-    return bf[BF_WAKE_T], min(wake_e, bf[BF_WAKE_FDI])
+    return bf[BF_WAKE_T], wake_e
 
 
 @kernel

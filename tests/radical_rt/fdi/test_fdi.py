@@ -263,11 +263,12 @@ def test_disabled_monitor_stays_silent(short_fault):
     assert not {"PARITY_ALARM", "GYRO_B_FAILED"} & set(s["flags"]) and s["mode"] != "degraded"
 
 
-def test_bookkeeping_runs_at_each_parity_sum_and_at_least_every_check_max(short_fault, monkeypatch):
+def test_bookkeeping_runs_at_each_hooked_sum_and_at_least_every_check_max(short_fault, monkeypatch):
     """Outside an alarm the monitor's bookkeeping runs at the window close of each parity sum
-    (where the compiled path hands over anyway) and, with no sums (three gyros after the
-    isolation), every CHECK_MAX_S of engine time."""
-    from radical_rt.fdi.monitor import CHECK_MAX_S, FaultMonitor
+    that goes to the window hook (the compiled loop takes the others, radical_rt.fdi.fdi_quiet,
+    but never one at which a snapshot is due: at least one every SNAPSHOT_PERIOD_S) and, with
+    no sums (three gyros after the isolation), every CHECK_MAX_S of engine time."""
+    from radical_rt.fdi.monitor import CHECK_MAX_S, SNAPSHOT_PERIOD_S, FaultMonitor
     runs, sums = [], []
     orig_gen, orig_sum = FaultMonitor._check_gen, FaultMonitor.on_parity_sum
 
@@ -284,13 +285,13 @@ def test_bookkeeping_runs_at_each_parity_sum_and_at_least_every_check_max(short_
     s = process([str(short_fault)], None)
     assert "GYRO_B_FAILED" in s["flags"]
     t_run = np.array([t for t, _ in runs])
-    # one window of slack: prop_window samples of the SIRU's true period (ε of the scenario)
-    assert np.diff(t_run).max() <= CHECK_MAX_S + 0.1 * (1 + 1e-3)
-    # before the fault: one bookkeeping per sum, at the sum's own window close
-    early = [t for t in sums if t < 1100.0]
-    assert len(early) > 80
+    # before the fault: a bookkeeping at each hooked sum's own window close, one at least every
+    # snapshot period (plus one sum of 1 s and one window of slack), and none other
+    early = [t for t in sums if 1010.0 < t < 1100.0]
+    assert len(early) >= 90.0 / (SNAPSHOT_PERIOD_S + 1.0)
     assert all(np.min(np.abs(t_run - t)) < 1e-9 for t in early)
-    assert sum(1 for t in t_run if t < 1100.0) <= len(early) + 2
-    # three gyros (no sums) after the isolation: the 2-s cadence
+    assert np.diff(early).max() <= SNAPSHOT_PERIOD_S + 1.0 + 0.1 * (1 + 1e-3)
+    assert sum(1 for t in t_run if 1010.0 < t < 1100.0) <= len(early) + 2
     three = [t for t, st in runs if st == "three-gyro"]
     assert len(three) > 20 and np.median(np.diff(three)) == pytest.approx(CHECK_MAX_S, abs=0.11)
+    assert np.diff(three).max() <= CHECK_MAX_S + 0.1 * (1 + 1e-3)

@@ -1,0 +1,104 @@
+"""Parity sums the engine's compiled loop takes for the FDI without stopping for its window hook
+(radical_rt/fdi/fdi_quiet.py, loop._take_sum): a run that lets the loop take them gives the same
+outputs, decisions and records, message for message, as one where every sum goes to the hook;
+the detector's step (fdi_detect.detector_step) gives the same bits compiled and uncompiled."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perf.fdi_cases import fault_toml, synth
+from radical_rt.apps.batch import process
+from radical_rt.fdi.fdi_detect import DET, DTH, HIT_NONE, ParityDetector, detector_step, thresholds
+from radical_rt.fdi.fdi_quiet import Q_ON, Q_TAKEN
+from radical_rt.fdi.monitor import FaultMonitor
+from radical_rt.io.archive import ArchiveReader
+
+
+@pytest.fixture(scope="module")
+def fault_archive(tmp_path_factory):
+    """300 s, bus time from 1000 s, gyro B bias step of 5 deg/hr at 150 s (cold start)."""
+    d = tmp_path_factory.mktemp("fdi_quiet")
+    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 150.0, "bias_deg_hr": 5.0},
+                      duration=300.0, t_start=1000.0)
+    return synth(text, d / "fault.mcap")
+
+
+def _run(path, out, take: bool):
+    """``radical process`` of path to out; take=False: the loop never takes a sum. Returns the
+    summary, every output message, the engine times of the sums the hook ran the detector on
+    and the number of sums the loop took."""
+    hooked, taken = [], []
+    orig_sum, orig_taken = FaultMonitor.on_parity_sum, FaultMonitor.sums_taken
+    orig_setup = FaultMonitor._quiet_setup
+
+    def on_sum(self, eng, stat):
+        hooked.append(float(eng.t))
+        return orig_sum(self, eng, stat)
+
+    def sums_taken(self):
+        taken.append(int(self.fq[Q_TAKEN]))
+        return orig_taken(self)
+
+    def setup(self, eng, enabled):
+        orig_setup(self, eng, enabled)
+        if not take:
+            self.fq[Q_ON] = 0.0
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(FaultMonitor, "on_parity_sum", on_sum)
+        m.setattr(FaultMonitor, "sums_taken", sums_taken)
+        m.setattr(FaultMonitor, "_quiet_setup", setup)
+        summary = process([str(path)], str(out))
+    with ArchiveReader(out) as r:
+        msgs = list(r.iter_messages())
+    return summary, msgs, hooked, sum(taken)
+
+
+def test_sums_taken_in_the_loop_change_nothing(fault_archive, tmp_path):
+    s_hook, m_hook, hooked_all, taken_none = _run(fault_archive, tmp_path / "hook.mcap", False)
+    s_loop, m_loop, hooked, taken = _run(fault_archive, tmp_path / "loop.mcap", True)
+    assert taken_none == 0 and "GYRO_B_FAILED" in s_hook["flags"]
+    # most sums before the alarm are taken in the loop; the alarm's sum goes to the hook
+    assert taken > 0.6 * len(hooked_all) and len(hooked) + taken == len(hooked_all)
+    assert s_loop == s_hook
+    assert len(m_loop) == len(m_hook)
+    diags = 0
+    for a, b in zip(m_loop, m_hook, strict=True):
+        assert a == b
+        diags += a[0] == "/diag"
+    assert diags > 250  # (the FDI's counts, last ν, CUSUMs and alarm are in every diag)
+    last = [m for topic, _ns, m in m_loop if topic == "/diag"][-1]["fdi"]
+    assert last["counts"]["sums"] >= taken and last["counts"]["isolations"] == 1
+
+
+def test_detector_step_compiled_and_uncompiled_agree():
+    """The compiled step and its Python source on the same sequence (quiet, guarded, drifting,
+    spikes): the same verdicts, onsets and statistics, bit for bit; ParityDetector reads them."""
+    th = thresholds(1e-3, 3600.0)
+    det = ParityDetector(th, 4.0)
+    rng = np.random.default_rng(7)
+    s_c, s_p = np.zeros(DET.end), np.zeros(DET.end)
+    s_c[:] = s_p[:] = det.state
+    cfg = det.config.copy()
+    assert cfg.shape == (DTH.end,)
+    hits = 0
+    for k in range(3000):
+        nu = rng.standard_normal() + (0.9 if 1000 <= k < 1300 else 0.0)
+        nu += 8.0 if k in (500, 2500) else 0.0
+        rho = 6.0 if 1800 <= k < 1900 else 1.0 + 0.5 * rng.random()
+        a = detector_step(s_c, cfg, nu, rho, float(k))
+        b = detector_step.py_func(s_p, cfg, nu, rho, float(k))
+        assert a[0] == b[0] and (a[1] == b[1] or math.isnan(a[1]) and math.isnan(b[1]))
+        assert s_c.tobytes() == s_p.tobytes()
+        hits += a[0] != HIT_NONE
+        hit = det.update(nu, rho, float(k))
+        assert (hit is None) == (a[0] == HIT_NONE)
+    assert hits > 2
+    assert det.state.tobytes() == s_c.tobytes()
+    st = det.get_state()
+    assert isinstance(st["run"], int) and isinstance(st["quiet"], int)
+    assert isinstance(st["guarded"], bool)
