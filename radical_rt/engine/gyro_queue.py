@@ -76,18 +76,19 @@ class GyroQueue:
 
 @kernel
 def predict_pending(dtheta, dt, status, a, b, t_now, clock_I, clock_F, excluded, xp, A, Gp, q,
-                    omega):
+                    omega, work):
     """The attitude of sample-triggered telemetry in one call: q (4,) q_body_from_inertial and
     omega (3,) [rad/s] (in place, from the filter's estimate) propagated through the queue's
     pending samples a..b−1 (dtheta (m, n), dt, status) and, when the SIRU clock (state arrays
     clock_I, clock_F) holds back a read that is probably the next sample, through that read as
     one more sample one estimated period later (:func:`radical_rt.kernels.propagate.predict_now`).
-    Returns the time of the prediction [s]: t_now, plus the period if the held-back read was
-    used (not when t_now is not finite)."""
+    work: a radical_rt.kernels.propagate.SampleWork (scratch). Returns the time of the
+    prediction [s]: t_now, plus the period if the held-back read was used (not when t_now is not
+    finite)."""
     has, pend_status, period = pending_read(clock_I, clock_F)
     use = has and math.isfinite(t_now)
     n = dtheta.shape[1]
     dp = L.DA + n
     predict_now(dtheta, dt, status, a, b, clock_F[dp:dp + n], pend_status, period, use, excluded,
-                xp, A, Gp, q, omega)
+                xp, A, Gp, q, omega, work)
     return t_now + period if use else t_now

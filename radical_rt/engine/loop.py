@@ -383,6 +383,6 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
         for c in range(3):
             omega_p[c] = omega[c]
         pred[1] = predict_pending(dth, dt, status, z, q_end, pred[1], clock_I, clock_F,
-                                  E[_EXCLUDED], E[_XP], E[_A], E[_GP], q_p, omega_p)
+                                  E[_EXCLUDED], E[_XP], E[_A], E[_GP], q_p, omega_p, work)
         pred[0] = 2.0
     return reason, k, e, 0

@@ -203,64 +203,56 @@ def propagate_sample(dth_k, h, var_k, parity, q, A, W, U_ax, V_ax, Mi, G, N, Phi
 
 
 @kernel
-def predict_attitude(dtheta, dt, status, excluded, xp, A, Gp, q, omega):
-    """Propagate the attitude only (no covariance, no accumulators) through samples not yet given
-    to the filter: the low-latency "now" attitude of sample-triggered telemetry.
+def predict_attitude(dtheta, dt, status, a, b, excluded, xp, A, Gp, q, omega, work):
+    """Propagate the attitude only (no covariance, no accumulators) through samples a..b−1 not
+    yet given to the filter: the low-latency "now" attitude of sample-triggered telemetry.
 
     dtheta (m, n) [rad], dt (m,) [s], status (m,) gyro-invalid bits, excluded (n,) bool; xp, A, Gp
     the engine's current calibration (internal parameters, scaled axes, pseudo-inverse). q (4,)
     q_body_from_inertial, propagated in place; omega (3,) receives the last body rate [rad/s].
-    Samples with fewer than three usable gyros are skipped. Returns the number of samples used.
+    work: a :class:`SampleWork` (scratch; the engine's own after its propagation). Samples with
+    fewer than three usable gyros are skipped. Returns the number of samples used.
     """
-    m, n = dtheta.shape
-    c = np.empty(n)
-    sg = np.empty(n)
-    s = np.empty(n)
-    th = np.empty(3)
-    work4 = np.empty(4)
-    dq = np.empty(4)
-    Gm = np.empty((3, n))
-    Mm = np.empty((3, 3))
-    active = np.empty(n, dtype=np.bool_)
+    wk = work_views(work)
     used = 0
-    for k in range(m):
-        n_act = 0
-        for i in range(n):
-            active[i] = (not excluded[i]) and ((status[k] >> i) & 1) == 0
-            n_act += 1 if active[i] else 0
-        G = Gp
-        if n_act < n:
-            if masked_pinv(A, active, Mm, Gm) < 0:
-                continue
-            G = Gm
-        h = dt[k]
-        correct_increment_lin(dtheta[k], h, xp, active, c, sg, s)
-        for r in range(3):
-            th[r] = G[r, 0] * c[0]
-            for i in range(1, n):
-                th[r] += G[r, i] * c[i]
-            if h > 0.0:
-                omega[r] = th[r] / h
-        apply_body_rotation(q, th, work4, dq)
-        used += 1
+    for k in range(a, b):
+        if _predict_sample(dtheta[k], dt[k], status[k], excluded, xp, A, Gp, q, omega, wk):
+            used += 1
     return used
+
+
+@inline_kernel
+def _predict_sample(dth_k, h, status_k, excluded, xp, A, Gp, q, omega, wk):
+    """One sample of :func:`predict_attitude` (dth_k (n,) [rad] over h [s], its gyro-invalid
+    bits status_k; wk: :class:`SampleWork` views). False: fewer than three usable gyros."""
+    n = dth_k.shape[0]
+    active, c, th = wk.active, wk.c, wk.th
+    n_act, _bits = active_gyros(excluded, status_k, active)
+    G = Gp
+    if n_act < n:
+        if masked_pinv(A, active, wk.Mm, wk.Gm) < 0:
+            return False
+        G = wk.Gm
+    correct_increment_lin(dth_k, h, xp, active, c, wk.sg, wk.s)
+    for r in range(3):
+        th[r] = G[r, 0] * c[0]
+        for i in range(1, n):
+            th[r] += G[r, i] * c[i]
+        if h > 0.0:
+            omega[r] = th[r] / h
+    apply_body_rotation(q, th, wk.work4, wk.dq)
+    return True
 
 
 @kernel
 def predict_now(dtheta, dt, status, a, b, pend_dth, pend_status, pend_dt, use_pend, excluded, xp,
-                A, Gp, q, omega):
+                A, Gp, q, omega, work):
     """:func:`predict_attitude` through samples a..b−1 of the pending arrays (dtheta (m, n), dt,
     status), then, if use_pend, through one more read (pend_dth (n,), pend_status, interval
-    pend_dt [s]): the attitude of sample-triggered telemetry in one call. q, omega in place."""
+    pend_dt [s]): the attitude of sample-triggered telemetry in one call. q, omega in place;
+    work: a :class:`SampleWork` (scratch)."""
     if b > a:
-        predict_attitude(dtheta[a:b], dt[a:b], status[a:b], excluded, xp, A, Gp, q, omega)
+        predict_attitude(dtheta, dt, status, a, b, excluded, xp, A, Gp, q, omega, work)
     if use_pend:
-        n = pend_dth.shape[0]
-        d1 = np.empty((1, n))
-        for i in range(n):
-            d1[0, i] = pend_dth[i]
-        h1 = np.empty(1)
-        h1[0] = pend_dt
-        s1 = np.empty(1, np.int64)
-        s1[0] = pend_status
-        predict_attitude(d1, h1, s1, excluded, xp, A, Gp, q, omega)
+        _predict_sample(pend_dth, pend_dt, pend_status, excluded, xp, A, Gp, q, omega,
+                        work_views(work))

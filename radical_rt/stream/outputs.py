@@ -21,6 +21,7 @@ import numpy as np
 
 from radical_rt.contract.flags import Flag, flag_names
 from radical_rt.engine.gyro_queue import predict_pending
+from radical_rt.kernels.propagate import sample_work
 from radical_rt.stream.telemetry import PacketSpec, build, read_field
 
 _CLOCK_ANOMALY, _INPUT_REJECTED = int(Flag.CLOCK_ANOMALY), int(Flag.INPUT_REJECTED)
@@ -149,9 +150,14 @@ class StreamOutputs:
         gq = self.gyro_q
         # the newest read, held back by the clock's look-ahead, taken as the next sample
         clock_I, clock_F = self.clock.state_arrays()
+        work = self._pred_work
+        if work is None:
+            work = self._pred_work = sample_work(e.n_gyro)
         t = predict_pending(gq.dtheta, gq.dt, gq.status, gq.head, gq.end, self.t_now, clock_I,
-                            clock_F, e.excluded, e.xp, e.A, e.Gp, q, omega)
+                            clock_F, e.excluded, e.xp, e.A, e.Gp, q, omega, work)
         return _now_fields(t, q.tolist(), omega.tolist())
+
+    _pred_work = None  # the prediction's work arrays (kernels.propagate.SampleWork), made once
 
     def _fault_detail(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.engine.mode}

@@ -15,7 +15,7 @@ import math
 from radical_rt._jit import kernel
 from radical_rt.clock.clock_layout import F_ANOM_UNTIL, F_TAU_NOW
 from radical_rt.contract.flags import Flag
-from radical_rt.engine.engine_layout import E_INDEX, unpack
+from radical_rt.engine.engine_layout import E_INDEX, propagation_work, unpack
 from radical_rt.engine.gyro_queue import predict_pending
 from radical_rt.engine.loop_layout import CNT_FLAGS, IO_ATT_VALID, IO_MODE, IO_T
 from radical_rt.stream.stream_layout import (
@@ -126,7 +126,8 @@ def sample_rows(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q
         row[0] = io[IO_T]
         if io[IO_ATT_VALID] != 0.0:
             row[0] = predict_pending(q_dth, q_dt, q_st, bi[BI_GQ_HEAD], bi[BI_GQ_END], t_now, cI,
-                                     cF, E[_EXCLUDED], E[_XP], E[_A], E[_GP], q, omega)
+                                     cF, E[_EXCLUDED], E[_XP], E[_A], E[_GP], q, omega,
+                                     propagation_work(E))
 
 
 @kernel

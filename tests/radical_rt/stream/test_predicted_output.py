@@ -19,7 +19,7 @@ from radical_rt.apps.batch import INPUTS, make_processor
 from radical_rt.clock.siru_clock import GyroBatch
 from radical_rt.engine.filter import Engine
 from radical_rt.io.archive import ArchiveReader
-from radical_rt.kernels.propagate import predict_attitude
+from radical_rt.kernels.propagate import predict_attitude, sample_work
 from radical_rt.stream.telemetry import PacketError, parse_packets
 from radical_rt.stream.tracker_queue import EventBlock, TrackerQueue
 from replayer.synth import synthesize
@@ -39,7 +39,8 @@ def test_predict_attitude_matches_filter_propagation():
     status = np.zeros(m, np.int64)
     status[3] = 0b0100  # one sample without gyro C: masked pseudo-inverse in both paths
     q, omega = e.q.copy(), np.zeros(3)
-    used = predict_attitude(dth, np.full(m, 0.01), status, e.excluded, e.xp, e.A, e.Gp, q, omega)
+    used = predict_attitude(dth, np.full(m, 0.01), status, 0, m, e.excluded, e.xp, e.A, e.Gp, q,
+                            omega, sample_work(4))
     arrays = (t, np.full(m, 0.01), dth, status, np.zeros(m, bool), np.zeros(m))
     e.release(arrays, 0, m, EventBlock(TrackerQueue(), 0, 0))  # gyro samples, no tracker
     assert used == m
@@ -140,7 +141,8 @@ def test_gyro_batch_prediction_skips_undetermined_samples():
     q, omega = np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3)
     b = GyroBatch(np.array([1.0, 1.01]), np.array([0.01, 0.01]), np.full((2, 4), 1e-5),
                   np.array([0b0011, 0]), np.zeros(2, bool), np.zeros(2))
-    used = predict_attitude(b.dtheta, b.dt, b.status, e.excluded, e.xp, e.A, e.Gp, q, omega)
+    used = predict_attitude(b.dtheta, b.dt, b.status, 0, 2, e.excluded, e.xp, e.A, e.Gp, q, omega,
+                            sample_work(4))
     assert used == 1 and np.linalg.norm(omega) > 0
 
 
