@@ -30,7 +30,7 @@ from radical_rt.engine.loop_layout import (
     IO_WAKE_T,
 )
 from radical_rt.engine.steps import window_state
-from radical_rt.fdi.fdi_quiet import Q_CHECK_S, take_sum
+from radical_rt.fdi.fdi_quiet import Q_CHECK_S, TAKE_NONE, TAKE_QUIET, take_sum
 
 
 @inline_kernel
@@ -55,14 +55,16 @@ def take_sum_here(io, cnt, fq):
     (:func:`radical_rt.fdi.fdi_quiet.take_sum` with its array fq; the hook then had nothing
     else to do): the engine's side is that it is the only sum queued, its statistic valid, the
     engine not restarted since the FDI looked (gaps and attitude inits: IO_GEN0) and no
-    excitation step due. The sum is then no longer pending, and the FDI's bookkeeping is due
-    CHECK_S after it (IO_WAKE_FDI), as its hook would have set."""
+    excitation step due. The sum is then no longer pending, and while monitoring the FDI's
+    bookkeeping is due CHECK_S after it (IO_WAKE_FDI), as its hook would have set."""
     if (cnt[CNT_PAR_SUMS] != 1 or cnt[CNT_PAR_STAT] != 1
             or cnt[CNT_GAPS] + cnt[CNT_ATT_INITS] != io[IO_GEN0] or not io[IO_T] < io[IO_EX_NEXT]):
         return False
-    if not take_sum(fq, io[IO_T], io[IO_PAR_NU], io[IO_PAR_RHO], io[IO_PAR_T0], io[IO_PAR_Z]):
+    took = take_sum(fq, io[IO_T], io[IO_PAR_NU], io[IO_PAR_RHO], io[IO_PAR_T0], io[IO_PAR_Z])
+    if took == TAKE_NONE:
         return False
     cnt[CNT_PAR_SUMS] = 0
     cnt[CNT_PAR_STAT] = 0
-    io[IO_WAKE_FDI] = io[IO_T] + fq[Q_CHECK_S]
+    if took == TAKE_QUIET:  # (during an alarm the FDI's wake is the bank's)
+        io[IO_WAKE_FDI] = io[IO_T] + fq[Q_CHECK_S]
     return True

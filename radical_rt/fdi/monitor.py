@@ -66,6 +66,9 @@ from radical_rt.fdi.fdi_quiet import (
     Q_TAKEN,
     Q_TH,
     QF,
+    TAKE_ALARM,
+    TAKE_NONE,
+    TAKE_QUIET,
 )
 from radical_rt.fdi.monitor_isolation import IsolationSteps
 from radical_rt.fdi.monitor_state import MonitorState
@@ -215,18 +218,24 @@ class FaultMonitor(IsolationSteps, MonitorState):
 
     def _quiet_setup(self, eng, enabled: bool) -> None:
         """Whether the compiled loop may take parity sums without the window hook
-        (radical_rt.fdi.fdi_quiet): while monitoring with no bookkeeping pending, the current
-        thresholds, a snapshot, no failed gyro and the generation the monitor has seen (the
-        loop checks that it stays so); with the newest snapshot's time."""
+        (radical_rt.fdi.fdi_quiet): while monitoring (TAKE_QUIET) or during an alarm whose bank
+        the loop runs (TAKE_ALARM, :meth:`kernel_bank`), with no bookkeeping pending, the
+        current thresholds, a snapshot, no failed gyro and the generation the monitor has seen
+        (the loop checks that it stays so); with the newest snapshot's time."""
         fq = self.fq
-        ok = (enabled and self.state == "monitoring" and self.bank is None and not self._sum_seen
-              and bool(self.snaps) and not self.failed_by_fdi and not self.flagged_only
-              and not int(eng.flags) & _ALL_FAILED)
-        if ok:
+        mode = TAKE_NONE
+        if (enabled and not self._sum_seen and self.snaps and not self.failed_by_fdi
+                and not self.flagged_only and not int(eng.flags) & _ALL_FAILED):
+            if self.state == "monitoring" and self.bank is None:
+                mode = TAKE_QUIET
+            elif self.state == "alarm" and self.kernel_bank() is not None:
+                mode = TAKE_ALARM
+        if mode != TAKE_NONE:
             self.detector(eng)  # (thresholds of the current table)
-            ok = eng.generation() == self.gen
-        fq[Q_ON] = 1.0 if ok else 0.0
-        if ok:
+            if eng.generation() != self.gen:
+                mode = TAKE_NONE
+        fq[Q_ON] = mode
+        if mode != TAKE_NONE:
             fq[Q_SNAP_T] = self.snaps[-1].t
 
     def sums_taken(self) -> None:
@@ -246,6 +255,8 @@ class FaultMonitor(IsolationSteps, MonitorState):
         while log and log[0][0] < t1 - BUFFER_S:  # (trimmed at t1 once: t0 and t1 increase)
             log.popleft()
         self._next_check = t1 + CHECK_MAX_S
+        if v[Q_ON] == TAKE_ALARM:  # (the hook decides at every window during an alarm)
+            self._t_decided = t1
 
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker
