@@ -8,9 +8,10 @@ Command::
 The scenario (2006216, seeded, bus time starting at 1000 s) is synthesized outside the timed region.
 A first, untimed pass over a short prefix compiles/loads the Numba kernels of both engines (its
 time is reported as ``warmup_s``); the timed passes run ``radical process`` (no output archive)
-over the whole archive, first with the UD engine, then with :class:`tests.oracles.dense_engine.DenseEngine`
-in its place (same stream processor, clock, packets and loop). ``x_realtime`` = telemetry seconds
-/ wall seconds (UD engine); ``us_per_gyro_sample`` = wall time per distinct SIRU sample
+over the whole archive, first with the UD engine (``REPEATS`` passes: ``wall_s`` is their
+median, ``wall_s_runs`` all of them), then once with
+:class:`tests.oracles.dense_engine.DenseEngine` in its place (same stream processor, clock,
+packets and loop). ``x_realtime`` = telemetry seconds / wall seconds (UD engine); ``us_per_gyro_sample`` = wall time per distinct SIRU sample
 (everything included: MCAP reading, decoding, clock, engine, packets). ``dense`` holds the same
 figures for the dense engine; ``ud_speedup`` = UD ``x_realtime`` / dense ``x_realtime`` (> 1: the
 UD engine is faster); ``dense_max_param_diff_sigma`` = largest final parameter difference between
@@ -18,7 +19,7 @@ the two engines in units of the UD σ (a check that both ran the same filter).
 
 ``end_to_end``: the command a user runs, ``radical process SIM.mcap -o OUT.mcap --summary S.json``,
 as a new process (start-up, imports, the Numba kernels loaded from the warm cache, MCAP reading and
-writing included): wall time from launch to exit and × real time. ``outside_compiled_share``: the
+writing included): wall time from launch to exit (median of ``REPEATS`` runs) and × real time. ``outside_compiled_share``: the
 share of py-spy's samples (``py-spy record --native``, 100 Hz, over the same command) whose
 innermost frame is not in Numba-compiled code, i.e. the time the process spends in Python,
 numpy, msgpack and the MCAP library rather than in the kernels (None without py-spy, and in
@@ -32,6 +33,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -40,6 +42,9 @@ from pathlib import Path
 from typing import Any
 
 PROFILES = {"smoke": 30.0, "quick": 600.0, "full": 7200.0}
+#: timed UD passes and end-to-end runs per profile (the median is reported, with the range: the
+#: 2-vCPU VM's speed drifts by several per cent between runs)
+REPEATS = {"smoke": 1, "quick": 3, "full": 3}
 SCENARIO_TOML = 'base = "2006216"\nt_start_s = 1000.0\n'
 DEFAULT_OUT = Path(__file__).resolve().parent / "results"
 
@@ -116,24 +121,28 @@ def _timed(profile: str) -> dict[str, Any]:
         _process(warm, Engine)
         _process(warm, DenseEngine)
         t1 = time.perf_counter()
-        summary, ud_engine = _process(sim, Engine)
+        walls = []
+        for _ in range(REPEATS[profile]):
+            t2 = time.perf_counter()
+            summary, ud_engine = _process(sim, Engine)
+            walls.append(time.perf_counter() - t2)
         t2 = time.perf_counter()
         _, dense_engine = _process(sim, DenseEngine)
         t3 = time.perf_counter()
-        e2e = _end_to_end(sim, Path(tmp))
+        e2es = [_end_to_end(sim, Path(tmp)) for _ in range(REPEATS[profile])]
         spy = None if profile == "smoke" else _outside_compiled_share(sim, Path(tmp))
-    wall, wall_dense = t2 - t1, t3 - t2
+    wall, wall_dense, e2e = statistics.median(walls), t3 - t2, statistics.median(e2es)
     n = summary["counters"]["siru_samples"]
     tel = PROFILES[profile]
     res = {"bench": "engine", "profile": profile, "telemetry_s": tel,
-           "wall_s": wall, "x_realtime": tel / wall,
+           "wall_s": wall, "x_realtime": tel / wall, "wall_s_runs": walls,
            "us_per_gyro_sample": 1e6 * wall / max(n, 1), "siru_samples": n,
            "warmup_s": t1 - t0, "n_states": int(ud_engine.ns),
            "dense": {"wall_s": wall_dense, "x_realtime": tel / wall_dense,
                      "us_per_gyro_sample": 1e6 * wall_dense / max(n, 1)},
            "ud_speedup": wall_dense / wall,
            "dense_max_param_diff_sigma": compare(ud_engine, dense_engine)["max_param_diff_sigma"],
-           "end_to_end": {"wall_s": e2e, "x_realtime": tel / e2e},
+           "end_to_end": {"wall_s": e2e, "x_realtime": tel / e2e, "wall_s_runs": e2es},
            "outside_compiled_share": spy}
     return res
 
@@ -188,8 +197,8 @@ def outside_share(collapsed: str) -> float | None:
 def markdown(res: dict[str, Any]) -> str:
     lines = ["| engine | telemetry s | wall s | × real time | µs / gyro sample | warm-up s |",
              "|---|---|---|---|---|---|",
-             f"| UD | {res['telemetry_s']:.0f} | {res['wall_s']:.2f} | {res['x_realtime']:.0f} | "
-             f"{res['us_per_gyro_sample']:.2f} | {res['warmup_s']:.2f} |"]
+             f"| UD | {res['telemetry_s']:.0f} | {res['wall_s']:.2f}{_spread(res)} | "
+             f"{res['x_realtime']:.0f} | {res['us_per_gyro_sample']:.2f} | {res['warmup_s']:.2f} |"]
     if "dense" in res:
         d = res["dense"]
         lines.append(f"| dense P | {res['telemetry_s']:.0f} | {d['wall_s']:.2f} | {d['x_realtime']:.0f} | "
@@ -200,10 +209,16 @@ def markdown(res: dict[str, Any]) -> str:
         e = res["end_to_end"]
         share = res.get("outside_compiled_share")
         lines += ["", f"End to end (`radical process` as a new process, start-up included): "
-                      f"{e['wall_s']:.2f} s, {e['x_realtime']:.0f}× real time; share of the time "
-                      "outside compiled code (py-spy): "
+                      f"{e['wall_s']:.2f} s{_spread(e)}, {e['x_realtime']:.0f}× real time; share of "
+                      "the time outside compiled code (py-spy): "
                       + ("n/a" if share is None else f"{100 * share:.0f} %") + "."]
     return "\n".join(lines)
+
+
+def _spread(r: dict[str, Any]) -> str:
+    """The text ' (min–max, n runs)' when r holds several runs (``wall_s_runs``), else ''."""
+    runs = r.get("wall_s_runs") or []
+    return f" ({min(runs):.2f}–{max(runs):.2f}, {len(runs)} runs)" if len(runs) > 1 else ""
 
 
 def main() -> None:

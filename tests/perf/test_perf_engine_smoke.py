@@ -15,6 +15,9 @@ def test_engine_bench_reports_finite_figures(tmp_path):
     assert json.loads((tmp_path / "engine_smoke.json").read_text())["bench"] == "engine"
     assert res["end_to_end"]["x_realtime"] > 0  # radical process as a new process
     assert "× real time" in bench_engine.markdown(res)
+    assert res["wall_s_runs"] == [res["wall_s"]]  # (one pass in the smoke profile)
+    runs = {"wall_s_runs": [2.5, 2.4, 2.6]}
+    assert bench_engine._spread(runs) == " (2.40–2.60, 3 runs)" and bench_engine._spread({}) == ""
 
 
 def test_outside_compiled_share_reads_native_stacks():
