@@ -1,5 +1,5 @@
 """Parity sums the engine's compiled loop takes for the FDI without stopping for its window hook
-(radical_rt/fdi/fdi_quiet.py, loop._take_sum): a run that lets the loop take them gives the same
+(radical_rt/fdi/fdi_quiet.py, engine/handover.take_sum_here): a run that lets the loop take them gives the same
 outputs, decisions and records, message for message, as one where every sum goes to the hook;
 the detector's step (fdi_detect.detector_step) gives the same bits compiled and uncompiled."""
 
@@ -10,21 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from perf.fdi_cases import fault_toml, synth
 from radical_rt.apps.batch import process
 from radical_rt.fdi.fdi_detect import DET, DTH, HIT_NONE, ParityDetector, detector_step, thresholds
 from radical_rt.fdi.fdi_quiet import Q_ON, Q_TAKEN
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.io.archive import ArchiveReader
-
-
-@pytest.fixture(scope="module")
-def fault_archive(tmp_path_factory):
-    """300 s, bus time from 1000 s, gyro B bias step of 5 deg/hr at 150 s (cold start)."""
-    d = tmp_path_factory.mktemp("fdi_quiet")
-    text = fault_toml({"kind": "bias_step", "gyro": 1, "start_s": 150.0, "bias_deg_hr": 5.0},
-                      duration=300.0, t_start=1000.0)
-    return synth(text, d / "fault.mcap")
 
 
 def _run(path, out, take: bool):
@@ -58,9 +48,9 @@ def _run(path, out, take: bool):
     return summary, msgs, hooked, sum(taken)
 
 
-def test_sums_taken_in_the_loop_change_nothing(fault_archive, tmp_path):
-    s_hook, m_hook, hooked_all, taken_none = _run(fault_archive, tmp_path / "hook.mcap", False)
-    s_loop, m_loop, hooked, taken = _run(fault_archive, tmp_path / "loop.mcap", True)
+def test_sums_taken_in_the_loop_change_nothing(short_fault, tmp_path):
+    s_hook, m_hook, hooked_all, taken_none = _run(short_fault, tmp_path / "hook.mcap", False)
+    s_loop, m_loop, hooked, taken = _run(short_fault, tmp_path / "loop.mcap", True)
     assert taken_none == 0 and "GYRO_B_FAILED" in s_hook["flags"]
     # most sums before the alarm are taken in the loop; the alarm's sum goes to the hook
     assert taken > 0.6 * len(hooked_all) and len(hooked) + taken == len(hooked_all)
@@ -70,7 +60,7 @@ def test_sums_taken_in_the_loop_change_nothing(fault_archive, tmp_path):
     for a, b in zip(m_loop, m_hook, strict=True):
         assert a == b
         diags += a[0] == "/diag"
-    assert diags > 250  # (the FDI's counts, last ν, CUSUMs and alarm are in every diag)
+    assert diags > 350  # (the FDI's counts, last ν, CUSUMs and alarm are in every diag)
     last = [m for topic, _ns, m in m_loop if topic == "/diag"][-1]["fdi"]
     assert last["counts"]["sums"] >= taken and last["counts"]["isolations"] == 1
 
