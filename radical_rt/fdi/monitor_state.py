@@ -14,7 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from radical_rt.fdi.fdi_detect import DTH
 from radical_rt.fdi.fdi_history import Snapshot
+from radical_rt.fdi.fdi_quiet import Q_DET, Q_TH
 
 
 class MonitorState:
@@ -68,6 +70,17 @@ class MonitorState:
             bs = dict(st["bank"])
             self.bank = self.bank_type(eng, Snapshot(**bs.pop("snap")), bs.pop("t_alarm"))
             self.bank.set_state(bs)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Copies (copy.deepcopy, pickle) copy each array on its own: the detector's statistics
+        and configuration are views of the array the engine's loop updates (``fq``,
+        radical_rt.fdi.fdi_quiet), and become views of the copy's array again."""
+        self.__dict__.update(state)
+        det = self.__dict__.get("det")
+        if det is not None:
+            fq = self.fq
+            fq[Q_DET:Q_TH], fq[Q_TH:Q_TH + DTH.end] = det.state, det.config
+            det.state, det.config = fq[Q_DET:Q_TH], fq[Q_TH:Q_TH + DTH.end]
 
     # ------------------------------------------------------------------ outputs
     def detail(self) -> dict[str, Any]:

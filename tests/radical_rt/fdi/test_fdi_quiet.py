@@ -92,3 +92,25 @@ def test_detector_step_compiled_and_uncompiled_agree():
     st = det.get_state()
     assert isinstance(st["run"], int) and isinstance(st["quiet"], int)
     assert isinstance(st["guarded"], bool)
+
+
+def test_copies_keep_the_detector_in_the_loops_array():
+    """A copied monitor (Run.fork's deepcopy, pickle) keeps its detector's statistics and
+    configuration as views of its own array: what the loop writes there, the detector reads."""
+    import copy
+    import pickle
+
+    from radical_rt.engine.filter import Engine
+    from radical_rt.fdi.fdi_quiet import Q_DET, Q_TH
+
+    m = FaultMonitor()
+    det = m.detector(Engine())
+    det.update(3.0, 1.0, 10.0)
+    for m2 in (copy.deepcopy(m), pickle.loads(pickle.dumps(m))):
+        d2 = m2.det
+        assert np.shares_memory(d2.state, m2.fq) and np.shares_memory(d2.config, m2.fq)
+        assert not np.shares_memory(m2.fq, m.fq)
+        assert d2.get_state() == det.get_state() and d2.config.tobytes() == det.config.tobytes()
+        m2.fq[Q_DET] = 7.5  # (the loop's write)
+        assert d2.s_pos == 7.5 and det.s_pos != 7.5
+        assert m2.fq[Q_TH:Q_TH + DTH.end].tobytes() == d2.config.tobytes()
