@@ -134,14 +134,19 @@ class FaultMonitor(IsolationSteps, MonitorState):
         return bool(self._p(eng, "enabled", True))
 
     def detector(self, eng) -> ParityDetector:
-        t_sum = eng.si.parity_window * SIRU_PERIOD_S
-        key = (float(self._p(eng, "false_alarm_per_hr", 1e-3)), t_sum,
-               float(self._p(eng, "guard_ratio", 4.0)))
+        """The detector of the current table (a new one, with fresh statistics, when its
+        thresholds changed)."""
+        key = self._detector_key(eng)
         if key != self._th_key or self.det is None:
-            self.det = ParityDetector(thresholds(key[0], 3600.0 / t_sum), key[2],
+            self.det = ParityDetector(thresholds(key[0], 3600.0 / key[1]), key[2],
                                       self.fq[Q_DET:Q_TH], self.fq[Q_TH:Q_TH + DTH.end])
             self._th_key = key
         return self.det
+
+    def _detector_key(self, eng) -> tuple[float, float, float]:
+        """(false-alarm rate [1/h], parity sum duration [s], guard ratio) of the current table."""
+        return (float(self._p(eng, "false_alarm_per_hr", 1e-3)),
+                eng.si.parity_window * SIRU_PERIOD_S, float(self._p(eng, "guard_ratio", 4.0)))
 
     def llr_threshold(self, eng) -> float:
         """The bank's decision margin: −ln(fdi_isolation_error_prob) (cached by value)."""
@@ -221,7 +226,8 @@ class FaultMonitor(IsolationSteps, MonitorState):
         (radical_rt.fdi.fdi_quiet): while monitoring (TAKE_QUIET) or during an alarm whose bank
         the loop runs (TAKE_ALARM, :meth:`kernel_bank`), with no bookkeeping pending, the
         current thresholds, a snapshot, no failed gyro and the generation the monitor has seen
-        (the loop checks that it stays so); with the newest snapshot's time."""
+        (the loop checks that it stays so); with the newest snapshot's time. It never makes
+        the detector: the hook of a sum does, as before."""
         fq = self.fq
         mode = TAKE_NONE
         if (enabled and not self._sum_seen and self.snaps and not self.failed_by_fdi
@@ -230,10 +236,9 @@ class FaultMonitor(IsolationSteps, MonitorState):
                 mode = TAKE_QUIET
             elif self.state == "alarm" and self.kernel_bank() is not None:
                 mode = TAKE_ALARM
-        if mode != TAKE_NONE:
-            self.detector(eng)  # (thresholds of the current table)
-            if eng.generation() != self.gen:
-                mode = TAKE_NONE
+        if mode != TAKE_NONE and (self.det is None or self._detector_key(eng) != self._th_key
+                                  or eng.generation() != self.gen):
+            mode = TAKE_NONE  # (the hook makes the detector of the current table first)
         fq[Q_ON] = mode
         if mode != TAKE_NONE:
             fq[Q_SNAP_T] = self.snaps[-1].t
