@@ -37,9 +37,9 @@ _PQ_I = E_INDEX["pq_i"]
 
 @inline_kernel
 def begin_call(io, cnt, sig_t, wake_t, wake_e, wake_fdi):
-    """The start of a compiled call: the collaborators' inputs into io (σ of the time line [s],
-    wake_t, wake_e and wake_fdi [s]: see radical_rt.engine.loop) and the flags at the start of the call
-    (CNT_FLAGS0). The rest of the engine's scalar state is kept in io and cnt between calls
+    """The start of a compiled call: the collaborators' inputs into io (σ of the time line [s];
+    wake_t, wake_e, wake_fdi [s]: see radical_rt.engine.loop) and the flags at the start of the
+    call (CNT_FLAGS0). The rest of the engine's scalar state is kept in io and cnt between calls
     (``LoopShell``: the engine's attributes are views of it); the counters accumulate until
     Python takes them (``LoopShell._drain``)."""
     io[IO_SIG_T], io[IO_WAKE_T], io[IO_WAKE_E] = sig_t, wake_t, wake_e

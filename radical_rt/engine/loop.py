@@ -14,7 +14,8 @@ trackers, convergence), the mode would change, the event time reached ``wake_t``
 packet or diag due) or the engine time ``wake_e`` (an INPUT_REJECTED hold ending) or
 ``wake_fdi`` (the FDI's bookkeeping), a parity sum was queued that the FDI does not take in the
 loop (an alarm, a snapshot or an excitation step due, :mod:`radical_rt.fdi.fdi_quiet`), with
-io[IO_WAKE_EVERY] set after every tracker sample (an FDI bank the kernel does not run itself), or after a tracker sample at which
+io[IO_WAKE_EVERY] set after every tracker sample (an FDI bank the kernel does not run itself),
+or after a tracker sample at which
 the bank the kernel runs (argument ``bk``) has its decision due. Python then runs
 ``Engine.on_window`` and calls again from where this call stopped. :func:`engine_event` runs a
 step for Python (commands, checks, the end of a stream) on the same state.

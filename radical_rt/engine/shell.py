@@ -139,7 +139,8 @@ class LoopShell:
         samples released, with room made in the FDI's histories; None when those calls must be
         this shell's (the FDI's window hook has work after every tracker sample). Sets the
         configuration that follows the collaborators (:meth:`_call_inputs`). Returns (wake_fdi
-        [s], the FDI's array of the sums it takes in the loop (radical_rt.fdi.fdi_quiet), R1, R2, fb, ib, bb, lay, cfg, io, cnt, the bank's four buffers (the running bank's,
+        [s], the FDI's array of the sums it takes in the loop (radical_rt.fdi.fdi_quiet), R1,
+        R2, fb, ib, bb, lay, cfg, io, cnt, the bank's four buffers (the running bank's,
         FaultMonitor.kernel_bank, with its history end as of now: the kernel sets it before each
         release, fdi_bank_pack.bank_set_end; else the idle bank's), g_f, g_i, g_b, g_end, trk_f,
         trk_i, trk_end, trk_seq); g_end, trk_end −1: no FDI. :meth:`outside_done` takes the ends
@@ -161,7 +162,8 @@ class LoopShell:
                 bk = bank.kernel_args(self, fdi.gbuf, g_end, trackers, fdi.llr_threshold(self))
         self._outside_bank = bank
         self._set_collaborators(every, fdi_on)  # (last: IO_GEN0 as of the call)
-        return (wake_fdi, self._no_fq if fdi is None else fdi.fq, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
+        fq = self._no_fq if fdi is None else fdi.fq
+        return (wake_fdi, fq, self.geo.R_st1_from_body, self.geo.R_st2_from_body_nom, self._fb,
                 self._ib, self._bb, self._lay, self._cfg, self._io, self._cnt, *bk) + hist
 
     def outside_done(self, g_end: int, trk_end: int, trk_seq: int, called: bool) -> None:
@@ -212,7 +214,7 @@ class LoopShell:
 
     def _set_collaborators(self, every: bool, fdi_on: bool) -> None:
         """The configuration that follows the collaborators (see :meth:`_call_inputs`), and
-        for the parity sums the FDI may take in the loop (loop._take_sum) the excitation
+        for the parity sums the FDI may take in the loop (handover.take_sum_here) the excitation
         monitor's next step (IO_EX_NEXT) and the restarts counted as the FDI saw them
         (IO_GEN0: right before the call, the counters not taken since)."""
         io, cnt, ex = self._io, self._cnt, self.excitation

@@ -5,16 +5,17 @@ the sum's statistic (ν, ρ, t0, z), a few records, and bookkeeping that changes
 the engine restarted, a snapshot is due or the configuration changed
 (:meth:`radical_rt.fdi.monitor.FaultMonitor.on_window`). Stopping the compiled loop for that,
 once a second, cost about a tenth of a run. So the monitor hands the loop this module's array
-(layout :data:`QF`: whether it may, the snapshot time and period, the detector's statistics and configuration of :mod:`radical_rt.fdi.fdi_detect`), and at a close
-where nothing else needs the hook the loop calls :func:`take_sum`: the detector's own step
+(layout :data:`QF`: whether it may, the snapshot time and period, the detector's statistics and
+configuration of :mod:`radical_rt.fdi.fdi_detect`), and at a close where nothing else needs the
+hook the loop calls :func:`take_sum`: the detector's own step
 (:func:`radical_rt.fdi.fdi_detect.detector_step`) on a copy of the statistics, kept only when no
 test fires, no snapshot is due and the ring of taken sums has room (the loop itself checks that
 the engine did not restart and that no excitation step is due). During an alarm whose bank the
 loop runs itself the hook of a sum only records the detector's step and the time (the bank
 decides at tracker samples, and hands over there), so the loop then takes every sum at which no
-snapshot is due, whatever the tests say. Every other sum goes to the hook as before, so the decisions and records
-are the same (tests/radical_rt/fdi/test_fdi_quiet.py); the monitor takes the taken sums' records
-after the call (:meth:`radical_rt.fdi.monitor.FaultMonitor.sums_taken`).
+snapshot is due, whatever the tests say. Every other sum goes to the hook as before, so the
+decisions and records are the same (tests/radical_rt/fdi/test_fdi_quiet.py); the monitor takes
+the taken sums' records after the call (:meth:`radical_rt.fdi.monitor.FaultMonitor.sums_taken`).
 """
 
 from __future__ import annotations

@@ -41,6 +41,7 @@ import numpy as np
 
 from radical_rt.contract.conventions import SIRU_PERIOD_S
 from radical_rt.contract.flags import GYRO_FAILED, Flag
+from radical_rt.fdi import fdi_quiet as FQ
 from radical_rt.fdi.fdi_detect import (
     CUSUM_SHIFT,
     DTH,
@@ -55,21 +56,6 @@ from radical_rt.fdi.fdi_detect import (
 )
 from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot, TrackerBuffer
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
-from radical_rt.fdi.fdi_quiet import (
-    Q_CHECK_S,
-    Q_DET,
-    Q_LAST,
-    Q_ON,
-    Q_RING,
-    Q_SNAP_PERIOD,
-    Q_SNAP_T,
-    Q_TAKEN,
-    Q_TH,
-    QF,
-    TAKE_ALARM,
-    TAKE_NONE,
-    TAKE_QUIET,
-)
 from radical_rt.fdi.monitor_isolation import IsolationSteps
 from radical_rt.fdi.monitor_state import MonitorState
 
@@ -101,8 +87,8 @@ class FaultMonitor(IsolationSteps, MonitorState):
         self.det: ParityDetector | None = None
         # what the engine's compiled loop needs to take parity sums itself (radical_rt.fdi.
         # fdi_quiet; the detector's statistics live there)
-        self.fq = np.zeros(QF.end)
-        self.fq[Q_SNAP_PERIOD], self.fq[Q_CHECK_S] = SNAPSHOT_PERIOD_S, CHECK_MAX_S
+        self.fq = np.zeros(FQ.QF.end)
+        self.fq[FQ.Q_SNAP_PERIOD], self.fq[FQ.Q_CHECK_S] = SNAPSHOT_PERIOD_S, CHECK_MAX_S
         self.gbuf = SampleBuffer()
         self.trk = TrackerBuffer()  # the valid tracker samples since the oldest snapshot
         self.trk_seq = 0
@@ -138,8 +124,9 @@ class FaultMonitor(IsolationSteps, MonitorState):
         thresholds changed)."""
         key = self._detector_key(eng)
         if key != self._th_key or self.det is None:
+            fq = self.fq
             self.det = ParityDetector(thresholds(key[0], 3600.0 / key[1]), key[2],
-                                      self.fq[Q_DET:Q_TH], self.fq[Q_TH:Q_TH + DTH.end])
+                                      fq[FQ.Q_DET:FQ.Q_TH], fq[FQ.Q_TH:FQ.Q_TH + DTH.end])
             self._th_key = key
         return self.det
 
@@ -217,50 +204,50 @@ class FaultMonitor(IsolationSteps, MonitorState):
         """What a compiled call of the engine needs from the FDI, in one call: (the bank it runs,
         :meth:`kernel_bank`; :meth:`wake_time`; :meth:`wake_on_tracker`; :meth:`enabled`), and
         the array :attr:`fq` set for it (:meth:`_quiet_setup`)."""
-        enabled = self.enabled(eng)
-        self._quiet_setup(eng, enabled)
-        return self.kernel_bank(), self.wake_time(), self.wake_on_tracker(), enabled
+        enabled, bank = self.enabled(eng), self.kernel_bank()
+        self._quiet_setup(eng, enabled, bank)
+        return bank, self.wake_time(), self.wake_on_tracker(), enabled
 
-    def _quiet_setup(self, eng, enabled: bool) -> None:
+    def _quiet_setup(self, eng, enabled: bool, bank: HypothesisBank | None) -> None:
         """Whether the compiled loop may take parity sums without the window hook
         (radical_rt.fdi.fdi_quiet): while monitoring (TAKE_QUIET) or during an alarm whose bank
-        the loop runs (TAKE_ALARM, :meth:`kernel_bank`), with no bookkeeping pending, the
-        current thresholds, a snapshot, no failed gyro and the generation the monitor has seen
+        the loop runs (TAKE_ALARM: ``bank``, :meth:`kernel_bank`), with no bookkeeping pending,
+        the current thresholds, a snapshot, no failed gyro and the generation the monitor has seen
         (the loop checks that it stays so); with the newest snapshot's time. It never makes
         the detector: the hook of a sum does, as before."""
         fq = self.fq
-        mode = TAKE_NONE
+        mode = FQ.TAKE_NONE
         if (enabled and not self._sum_seen and self.snaps and not self.failed_by_fdi
                 and not self.flagged_only and not int(eng.flags) & _ALL_FAILED):
             if self.state == "monitoring" and self.bank is None:
-                mode = TAKE_QUIET
-            elif self.state == "alarm" and self.kernel_bank() is not None:
-                mode = TAKE_ALARM
-        if mode != TAKE_NONE and (self.det is None or self._detector_key(eng) != self._th_key
+                mode = FQ.TAKE_QUIET
+            elif self.state == "alarm" and bank is not None:
+                mode = FQ.TAKE_ALARM
+        if mode != FQ.TAKE_NONE and (self.det is None or self._detector_key(eng) != self._th_key
                                   or eng.generation() != self.gen):
-            mode = TAKE_NONE  # (the hook makes the detector of the current table first)
-        fq[Q_ON] = mode
-        if mode != TAKE_NONE:
-            fq[Q_SNAP_T] = self.snaps[-1].t
+            mode = FQ.TAKE_NONE  # (the hook makes the detector of the current table first)
+        fq[FQ.Q_ON] = mode
+        if mode != FQ.TAKE_NONE:
+            fq[FQ.Q_SNAP_T] = self.snaps[-1].t
 
     def sums_taken(self) -> None:
         """The records of the parity sums the compiled loop took (radical_rt.fdi.fdi_quiet), as
         :meth:`on_parity_sum` and the bookkeeping of :meth:`on_window` keep them: the count,
         the last ν and ρ, the parity log and the time of the next bookkeeping."""
         v = self.fq.tolist()
-        n = int(v[Q_TAKEN])
+        n = int(v[FQ.Q_TAKEN])
         if not n:
             return
-        self.fq[Q_TAKEN] = 0.0
+        self.fq[FQ.Q_TAKEN] = 0.0
         self.counts["sums"] += n
-        self.last_nu, self.last_rho, t1 = v[Q_LAST:Q_LAST + 3]
+        self.last_nu, self.last_rho, t1 = v[FQ.Q_LAST:FQ.Q_LAST + 3]
         log = self.parity_log
         for k in range(n):
-            log.append((v[Q_RING + 2 * k], v[Q_RING + 2 * k + 1]))
+            log.append((v[FQ.Q_RING + 2 * k], v[FQ.Q_RING + 2 * k + 1]))
         while log and log[0][0] < t1 - BUFFER_S:  # (trimmed at t1 once: t0 and t1 increase)
             log.popleft()
         self._next_check = t1 + CHECK_MAX_S
-        if v[Q_ON] == TAKE_ALARM:  # (the hook decides at every window during an alarm)
+        if v[FQ.Q_ON] == FQ.TAKE_ALARM:  # (the hook decides at every window during an alarm)
             self._t_decided = t1
 
     def kernel_bank(self) -> HypothesisBank | None:

@@ -129,6 +129,17 @@ def work_views(wk):
 
 
 @inline_kernel
+def body_increment(G, c, th):
+    """th (3,) ← θ̂ = G c [rad, body]: the body increment of one sample from the corrected
+    increments c (n,) through the pseudo-inverse G (3, n), summed gyro by gyro in order."""
+    n = c.shape[0]
+    for r in range(3):
+        th[r] = G[r, 0] * c[0]
+        for i in range(1, n):
+            th[r] += G[r, i] * c[i]
+
+
+@inline_kernel
 def active_gyros(excluded, status_k, active):
     """active (n,) ← the gyros neither excluded (n,) bool nor flagged invalid in the status bits
     status_k of one sample. Returns (their number, their bit pattern)."""
@@ -153,10 +164,7 @@ def propagate_sample(dth_k, h, var_k, parity, q, A, W, U_ax, V_ax, Mi, G, N, Phi
     ``parity`` (all gyros, not bridged) the parity statistics. wk: a :class:`SampleWork`."""
     c, sg, s, gh, th, F, work4, dq, active, R, T = wk[:11]
     n = dth_k.shape[0]
-    for r in range(3):
-        th[r] = G[r, 0] * c[0]
-        for i in range(1, n):
-            th[r] += G[r, i] * c[i]
+    body_increment(G, c, th)
     for i in range(n):
         gh[i] = (A[0, i] * th[0] + A[1, i] * th[1] + A[2, i] * th[2]) if active[i] else 0.0
     rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
@@ -234,11 +242,9 @@ def _predict_sample(dth_k, h, status_k, excluded, xp, A, Gp, q, omega, wk):
             return False
         G = wk.Gm
     correct_increment_lin(dth_k, h, xp, active, c, wk.sg, wk.s)
-    for r in range(3):
-        th[r] = G[r, 0] * c[0]
-        for i in range(1, n):
-            th[r] += G[r, i] * c[i]
-        if h > 0.0:
+    body_increment(G, c, th)
+    if h > 0.0:
+        for r in range(3):
             omega[r] = th[r] / h
     apply_body_rotation(q, th, wk.work4, wk.dq)
     return True

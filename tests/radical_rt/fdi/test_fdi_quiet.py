@@ -33,8 +33,8 @@ def _run(path, out, take: bool):
         taken.append(int(self.fq[Q_TAKEN]))
         return orig_taken(self)
 
-    def setup(self, eng, enabled):
-        orig_setup(self, eng, enabled)
+    def setup(self, eng, *args):
+        orig_setup(self, eng, *args)
         if not take:
             self.fq[Q_ON] = 0.0
 
