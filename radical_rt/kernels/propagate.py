@@ -140,6 +140,21 @@ def body_increment(G, c, th):
 
 
 @inline_kernel
+def rotate_columns(R, P, m):
+    """P[:, :m] ← Rᵀ P[:, :m] (R (3, 3), P (3, ≥ m)), column by column with the entries of R held
+    in registers: the loop over the columns compiles to vector instructions (the same products
+    and sums, in the same order, as one column at a time)."""
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    for c in range(m):
+        x0, x1, x2 = P[0, c], P[1, c], P[2, c]
+        P[0, c] = r00 * x0 + r10 * x1 + r20 * x2
+        P[1, c] = r01 * x0 + r11 * x1 + r21 * x2
+        P[2, c] = r02 * x0 + r12 * x1 + r22 * x2
+
+
+@inline_kernel
 def active_gyros(excluded, status_k, active):
     """active (n,) ← the gyros neither excluded (n,) bool nor flagged invalid in the status bits
     status_k of one sample. Returns (their number, their bit pattern)."""
@@ -170,17 +185,14 @@ def propagate_sample(dth_k, h, var_k, parity, q, A, W, U_ax, V_ax, Mi, G, N, Phi
     rotvec_to_quat_into(th, dq)  # the quaternion of R(θ̂), used twice below
     quat_to_dcm_into(dq, R)
     # Phi_aa ← Rᵀ Phi_aa; Phi_ap ← Rᵀ Phi_ap + F; Q_aa ← Rᵀ Q_aa R + arw·h·Minv + var_extra·I
-    for j in range(3):
-        x0, x1, x2 = Phi_aa[0, j], Phi_aa[1, j], Phi_aa[2, j]
-        for r in range(3):
-            Phi_aa[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2
+    rotate_columns(R, Phi_aa, 3)
+    rotate_columns(R, Phi_ap, 5 * n)  # the gyro columns (the φ2 and τ ones stay zero)
     for i in range(n):  # F = ∂θ̂/∂p̂ one gyro (five columns k·n + i) at a time
         jacobian_gyro(i, gh, sg, s, h, th, W, U_ax, V_ax, G, active, F)
         for k in range(5):
             j = k * n + i
-            x0, x1, x2 = Phi_ap[0, j], Phi_ap[1, j], Phi_ap[2, j]
             for r in range(3):
-                Phi_ap[r, j] = R[0, r] * x0 + R[1, r] * x1 + R[2, r] * x2 + F[r, k]
+                Phi_ap[r, j] += F[r, k]
     for j in range(3):
         x0, x1, x2 = Q_aa[0, j], Q_aa[1, j], Q_aa[2, j]
         for r in range(3):
