@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from radical_rt._jit import OK, kernel
+from radical_rt._jit import OK, inline_kernel, kernel
 from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, transition_clear
 from radical_rt.kernels.rotation import apply_body_rotation, quat_mul_into, rotvec_to_quat_into
 from radical_rt.kernels.tracker_model import tracker_error, tracker_geometry
@@ -41,7 +41,7 @@ from radical_rt.kernels.ud import cholesky_lower
 from radical_rt.kernels.updates import timing_noise
 
 
-@kernel
+@inline_kernel
 def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extrap, st_sigma,
                  ref_stars, sig_t, gate, q, omega, Ptt, Ptp, Ppp, ll, nis, nis_k, logdet_k, W33, W3p,
                  W4):
@@ -270,7 +270,7 @@ BK_F, BK_ST, BK_BR, BK_SIG, BK_BI, BK_BF = (BK_INDEX[n] for n in ("f", "st", "br
                                                                  "bi", "bf"))
 
 
-@kernel
+@inline_kernel
 def decide(ll, nis, thr, k, llr_min):
     """The bank's decision after k ≥ 1 tracker samples (docs/fdi.md §3.3): ll, nis (nh,) as in
     the bank, thr (K,) the consistency thresholds χ²(3k) by k (fdi_hypotheses.consistency_thresholds),
@@ -295,7 +295,7 @@ def decide(ll, nis, thr, k, llr_min):
     return (0 if nis[best] > thr[k] else 1), best, margin
 
 
-@kernel
+@inline_kernel
 def decision_due(ll, nis, thr, k, llr_min):
     """Whether HypothesisBank.decision(llr_min) would say anything but "wait" after k ≥ 1 tracker
     samples (:func:`decide`; a table too short answers True, a harmless handover)."""

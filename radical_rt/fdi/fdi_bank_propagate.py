@@ -17,7 +17,7 @@ when that would change nothing. The tracker update, the per-sample step and the 
 
 from __future__ import annotations
 
-from radical_rt._jit import kernel
+from radical_rt._jit import inline_kernel, kernel
 from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.propagate import PROP_UNDETERMINED, propagate_window, sample_work
 
@@ -40,14 +40,14 @@ def append_rows(f, i_blk, b_blk, end, t, dt, var_extra, dth, status, bridged, a,
         i_blk[k], b_blk[k] = status[r], bridged[r]
 
 
-@kernel
+@inline_kernel
 def rows_after(f, i0, end, t_after, t_upto):
     """Rows a..z−1 of the float block f (time in column COL_T, ascending over rows i0..end−1)
     with t_after < t ≤ t_upto: (a, z), z ≤ a when there are none (np.searchsorted, side right)."""
     return _search_right(f, i0, end, t_after), _search_right(f, i0, end, t_upto)
 
 
-@kernel
+@inline_kernel
 def _search_right(f, lo, hi, x):
     while lo < hi:
         mid = (lo + hi) // 2
@@ -58,7 +58,7 @@ def _search_right(f, lo, hi, x):
     return lo
 
 
-@kernel
+@inline_kernel
 def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none,
                    arw_var, q, omega, tlast, undetermined, Phi_aa, Phi_ap, Q_aa, par_y, par_t, acc_i,
                    acc_f, th_acc):
@@ -99,7 +99,7 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     return z - a
 
 
-@kernel
+@inline_kernel
 def bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, FPtp, GPpp, T):
     """Schmidt time update of every hypothesis with its accumulated transition, then the
     accumulators reset (Phi_aa = I, Phi_ap = 0, Q_aa = 0):
@@ -148,7 +148,7 @@ def bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, FPtp, GPpp, T):
                 G[r, c] = 0.0
 
 
-@kernel
+@inline_kernel
 def transition_clear(Phi_aa, Phi_ap, Q_aa, Ptt):
     """Whether every hypothesis's accumulated transition is the identity (Phi_aa = I, Phi_ap = 0,
     Q_aa = 0; shapes of :func:`bank_propagate`) and its Ptt (nh, 3, 3) exactly symmetric:

@@ -177,7 +177,7 @@ def fold_correction(dx, q, xp, W, U_ax, V_ax, A, Minv, Gp, N):
     return refresh_axes(xp, W, U_ax, V_ax, N, A, Minv, Gp, N)
 
 
-@kernel
+@inline_kernel
 def correct_increment_lin(y, dt, xp, active, c_out, sgn_out, s_out):
     """Corrected increments c_i = (y_i − b̂_i dt)/(1 + μ̂'_i sgn) ≈ a_iᵀθ (internal params).
 
