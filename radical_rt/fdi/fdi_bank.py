@@ -34,9 +34,9 @@ import numpy as np
 
 from radical_rt._jit import OK, inline_kernel, kernel
 from radical_rt.fdi.fdi_bank_propagate import bank_flush, bank_propagate, transition_clear
+from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.rotation import apply_body_rotation, quat_mul_into, rotvec_to_quat_into
 from radical_rt.kernels.tracker_model import tracker_error, tracker_geometry
-from radical_rt.kernels.flat_views import borrow
 from radical_rt.kernels.ud import cholesky_lower
 from radical_rt.kernels.updates import timing_noise
 
@@ -63,9 +63,10 @@ def bank_tracker(q_meas, n_stars, R_nom, use_phi, phi, phi_col, lat_col, dt_extr
     positive definite: ll = −inf, no correction). Work: W33 (12, 3, 3), W3p (3, 3, npar), W4 (4, 4).
     Returns the number of hypotheses whose S was not positive definite.
     """
-    q_meas, R_nom, phi, st_sigma, q = borrow(q_meas), borrow(R_nom), borrow(phi), borrow(st_sigma), borrow(q)
-    omega, Ptt, Ptp, Ppp, ll, nis = borrow(omega), borrow(Ptt), borrow(Ptp), borrow(Ppp), borrow(ll), borrow(nis)
-    nis_k, logdet_k, W33, W3p, W4 = borrow(nis_k), borrow(logdet_k), borrow(W33), borrow(W3p), borrow(W4)
+    q_meas, R_nom, phi, st_sigma = borrow(q_meas), borrow(R_nom), borrow(phi), borrow(st_sigma)
+    q, omega, Ptt, Ptp, Ppp = borrow(q), borrow(omega), borrow(Ptt), borrow(Ptp), borrow(Ppp)
+    ll, nis, nis_k, logdet_k = borrow(ll), borrow(nis), borrow(nis_k), borrow(logdet_k)
+    W33, W3p, W4 = borrow(W33), borrow(W3p), borrow(W4)
     nh = q.shape[0]
     npar = Ppp.shape[0]
     Ha, Hphi, R, PHt, S, L, K, Ptt_new = W33[0], W33[1], W33[2], W33[3], W33[4], W33[5], W33[6], W33[7]
@@ -331,7 +332,8 @@ def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax
                               borrow(bk[_NIS]))
     nis_k, logdet_k = borrow(bk[_NIS_K]), borrow(bk[_LOGDET_K])
     par_y, par_t, acc_i = borrow(bk[_PAR_Y]), borrow(bk[_PAR_T]), borrow(bk[_ACC_I])
-    acc_f, th_acc, W33, W3p = borrow(bk[_ACC_F]), borrow(bk[_TH_ACC]), borrow(bk[_W33]), borrow(bk[_W3P])
+    acc_f, th_acc = borrow(bk[_ACC_F]), borrow(bk[_TH_ACC])
+    W33, W3p = borrow(bk[_W33]), borrow(bk[_W3P])
     W4, phi, st_sigma, thr = borrow(bk[_W4]), borrow(bk[_PHI]), borrow(bk[_SIG]), borrow(bk[_THR])
     bi, bf = borrow(bk[_BI]), borrow(bk[_BF])
     bad = bank_step(f, st, br, bi[BI_I0], bi[BI_END], q_meas, n_stars, epoch, R_nom, use_phi, phi,

@@ -76,11 +76,14 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     propagate_window: par_y, par_t (2, n), acc_i int64 (4,), acc_f, th_acc (3,). Returns the
     number of gyro samples in the run.
     """
-    f, st, br, masks, xp, A, W = borrow(f), borrow(st), borrow(br), borrow(masks), borrow(xp), borrow(A), borrow(W)
-    U_ax, V_ax, Minv, Gp, N_none = borrow(U_ax), borrow(V_ax), borrow(Minv), borrow(Gp), borrow(N_none)
-    q, omega, tlast, undetermined = borrow(q), borrow(omega), borrow(tlast), borrow(undetermined)
-    Phi_aa, Phi_ap, Q_aa, par_y, par_t = borrow(Phi_aa), borrow(Phi_ap), borrow(Q_aa), borrow(par_y), borrow(par_t)
-    acc_i, acc_f, th_acc = borrow(acc_i), borrow(acc_f), borrow(th_acc)
+    # views that own no memory (flat_views.borrow): no atomic reference count per view taken
+    f, st, br, masks, xp = borrow(f), borrow(st), borrow(br), borrow(masks), borrow(xp)
+    A, W, U_ax, V_ax, Minv = borrow(A), borrow(W), borrow(U_ax), borrow(V_ax), borrow(Minv)
+    Gp, N_none, q, omega = borrow(Gp), borrow(N_none), borrow(q), borrow(omega)
+    tlast = borrow(tlast)
+    undetermined, Phi_aa, Phi_ap = borrow(undetermined), borrow(Phi_aa), borrow(Phi_ap)
+    Q_aa, par_y, par_t, acc_i = borrow(Q_aa), borrow(par_y), borrow(par_t), borrow(acc_i)
+    acc_f, th_acc = borrow(acc_f), borrow(th_acc)
     a, z = rows_after(f, i0, end, tlast[0], t_end)
     if z <= a:
         return 0
@@ -108,7 +111,8 @@ def bank_flush(Phi_aa, Phi_ap, Q_aa, Ptt, Ptp, Ppp, FPtp, GPpp, T):
 
     with Φ = Phi_aa[h], Γ = Phi_ap[h], Q = Q_aa[h] (shapes of :func:`bank_propagate`); Ptt
     (nh, 3, 3), Ptp (nh, 3, npar), Ppp (npar, npar). Work: FPtp, GPpp (3, npar), T (3, 3)."""
-    Phi_aa, Phi_ap, Q_aa, Ptt, Ptp = borrow(Phi_aa), borrow(Phi_ap), borrow(Q_aa), borrow(Ptt), borrow(Ptp)
+    Phi_aa, Phi_ap, Q_aa = borrow(Phi_aa), borrow(Phi_ap), borrow(Q_aa)
+    Ptt, Ptp = borrow(Ptt), borrow(Ptp)
     Ppp, FPtp, GPpp, T = borrow(Ppp), borrow(FPtp), borrow(GPpp), borrow(T)
     npar = Ppp.shape[0]
     for h in range(Ptt.shape[0]):
