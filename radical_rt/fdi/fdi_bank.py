@@ -322,20 +322,13 @@ def bank_sample(bk, q_meas, n_stars, epoch, R_nom, use_phi, sig_t, W, U_ax, V_ax
     phi (3,), st_sigma (3,), thr (K,), bi int64 (8,) BI_*, bf float64 (5,) BF_*) and the engine's
     geometry W, U_ax, V_ax; bi[BI_K] and bi[BI_STEPS] += 1, bi[BI_BAD] += the hypotheses whose S
     was not positive definite. Returns :func:`decision_due` (True: hand over to Python)."""
-    f, st, br, masks, xp, A = (borrow(bk[_F]), borrow(bk[_ST]), borrow(bk[_BR]),
-                               borrow(bk[_MASKS]), borrow(bk[_XP]), borrow(bk[_A]))
-    Minv, Gp, N_none, q, omega = (borrow(bk[_MINV]), borrow(bk[_GP]), borrow(bk[_N_NONE]),
-                                  borrow(bk[_Q]), borrow(bk[_OMEGA]))
-    tlast, undetermined = borrow(bk[_TLAST]), borrow(bk[_UNDET])
-    Phi_aa, Phi_ap, Q_aa = borrow(bk[_PHI_AA]), borrow(bk[_PHI_AP]), borrow(bk[_Q_AA])
-    Ptt, Ptp, Ppp, ll, nis = (borrow(bk[_PTT]), borrow(bk[_PTP]), borrow(bk[_PPP]), borrow(bk[_LL]),
-                              borrow(bk[_NIS]))
-    nis_k, logdet_k = borrow(bk[_NIS_K]), borrow(bk[_LOGDET_K])
-    par_y, par_t, acc_i = borrow(bk[_PAR_Y]), borrow(bk[_PAR_T]), borrow(bk[_ACC_I])
-    acc_f, th_acc = borrow(bk[_ACC_F]), borrow(bk[_TH_ACC])
-    W33, W3p = borrow(bk[_W33]), borrow(bk[_W3P])
-    W4, phi, st_sigma, thr = borrow(bk[_W4]), borrow(bk[_PHI]), borrow(bk[_SIG]), borrow(bk[_THR])
-    bi, bf = borrow(bk[_BI]), borrow(bk[_BF])
+    f, st, br, masks, xp, A = bk[_F], bk[_ST], bk[_BR], bk[_MASKS], bk[_XP], bk[_A]
+    Minv, Gp, N_none, q, omega = bk[_MINV], bk[_GP], bk[_N_NONE], bk[_Q], bk[_OMEGA]
+    tlast, undetermined, Phi_aa, Phi_ap = bk[_TLAST], bk[_UNDET], bk[_PHI_AA], bk[_PHI_AP]
+    Q_aa, Ptt, Ptp, Ppp, ll, nis = bk[_Q_AA], bk[_PTT], bk[_PTP], bk[_PPP], bk[_LL], bk[_NIS]
+    nis_k, logdet_k, par_y, par_t = bk[_NIS_K], bk[_LOGDET_K], bk[_PAR_Y], bk[_PAR_T]
+    acc_i, acc_f, th_acc, W33, W3p = bk[_ACC_I], bk[_ACC_F], bk[_TH_ACC], bk[_W33], bk[_W3P]
+    W4, phi, st_sigma, thr, bi, bf = bk[_W4], bk[_PHI], bk[_SIG], bk[_THR], bk[_BI], bk[_BF]
     bad = bank_step(f, st, br, bi[BI_I0], bi[BI_END], q_meas, n_stars, epoch, R_nom, use_phi, phi,
                     bi[BI_PHI_COL], bi[BI_LAT_COL], bf[BF_TAU], st_sigma, bf[BF_REF_STARS], sig_t,
                     bf[BF_GATE], masks, xp, A, W, U_ax, V_ax, Minv, Gp, N_none, bf[BF_ARW], q,
