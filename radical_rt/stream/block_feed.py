@@ -35,12 +35,15 @@ from radical_rt.stream.intake_block import (
     T_SIRU,
     T_ST1,
     T_ST2,
+    T_TEMP,
     intake_block,
 )
 from radical_rt.stream.telemetry import build
+from radical_rt.stream.temp_wire import TEMP_COLS, TEMP_NAMES
 from radical_rt.stream.tracker_queue import IN_RELEASE
 
-_CODE = {"siru": T_SIRU, "st1": T_ST1, "st2": T_ST2}
+_CODE = {"siru": T_SIRU, "st1": T_ST1, "st2": T_ST2, "temp": T_TEMP}
+_TEMP_ROWS = 64  # temp messages one block call may take
 _NO_BYTES, _NO_INTS = np.frombuffer(b"", np.uint8), np.zeros(0, np.int64)  # (no messages)
 _LINK_LOSS = int(Flag.LINK_LOSS)
 
@@ -50,9 +53,11 @@ class BlockFeed:
 
     def _init_block(self) -> None:
         """The block intake's control arrays (BI, BF of radical_rt.stream.stream_layout) and the
-        quaternion of the last tracker sample it took in per tracker (3, 4)."""
+        quaternion of the last tracker sample it took in per tracker (3, 4), the rows of the temp
+        messages it took in (radical_rt.stream.temp_wire)."""
         self._bi, self._bf = np.zeros(SL.BI.end, np.int64), np.zeros(SL.BF.end)
         self._block_q = np.zeros((3, 4))
+        self._temp_f = np.zeros((_TEMP_ROWS, TEMP_COLS))
 
     def feed_many(self, messages: list[tuple[str, bytes]]) -> list[tuple[str, dict[str, Any]]]:
         """Take input messages (topic without the leading slash, payload bytes) in order;
@@ -185,8 +190,10 @@ class BlockFeed:
                      tq.ss, tq.si, tq.ev_f, tq.ev_i, tq.q_work, self._block_q, I, F, OF, OI,
                      tags, gq.t, gq.dt, gq.dtheta, gq.status, gq.bridged, gq.var_extra,
                      e.acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, self._pred,
-                     bfb, bib, bbb, blay, trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq)
+                     bfb, bib, bbb, blay, trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq, self._temp_f)
         v = bi.tolist()
+        if v[SL.BI_TEMPS]:
+            self._temps_done(v[SL.BI_TEMPS])
         if k_siru > 1:
             self._rows_done(v[SL.BI_ROWS])
         gq.head, gq.end = v[SL.BI_GQ_HEAD], v[SL.BI_GQ_END]
@@ -222,7 +229,18 @@ class BlockFeed:
         bf[SL.BF_LAST_REJECT], bf[SL.BF_REJECT_HOLD] = self.last_reject_t, self.reject_hold_s
         bf[SL.BF_WAKE_T], bf[SL.BF_WAKE_E], bf[SL.BF_WAKE_FDI] = wake_t, self._guard_wake(), wake_fdi
         bf[SL.BF_T_NOW] = self.t_now
+        bf[SL.BF_LAST_TEMP] = self.last_t.get("temp", -math.inf)
         return bi, bf
+
+    def _temps_done(self, n: int) -> None:
+        """The kernel's rows of the n temp messages it took in, in order: the temperatures and
+        the last temp time, as :meth:`feed` keeps them."""
+        temps = self.temps
+        for row in self._temp_f[:n].tolist():
+            for name, value in zip(TEMP_NAMES, row[1:], strict=True):
+                if value == value:  # (NaN: not in the message)
+                    temps[name] = value
+        self.last_t["temp"] = float(self._bf[SL.BF_LAST_TEMP])
 
     # ---------------------------------------------------------------- sample-triggered packets
     #: the fields a sample-triggered packet may have for the block to make it from a row

@@ -53,9 +53,10 @@ from radical_rt.engine.loop_layout import (
 from radical_rt.fdi.fdi_bank_pack import bank_on, bank_set_end
 from radical_rt.kernels.flat_views import borrow
 from radical_rt.stream.packets import MAX_SIRU_BATCH
-from radical_rt.stream.siru_wire import WIRE_OK, siru_intake
+from radical_rt.stream.siru_wire import WIRE_OK, outside_window, siru_intake
 from radical_rt.stream.stream_layout import (
     BF_INPUT_GAP,
+    BF_LAST_TEMP,
     BF_LATENCY,
     BF_MIN_INTERVAL,
     BF_PREV,
@@ -88,6 +89,7 @@ from radical_rt.stream.stream_layout import (
     BI_SAMPLE_PACKETS,
     BI_SIRU_M,
     BI_STATUS,
+    BI_TEMPS,
     BI_TOOK,
     BI_TRK_END,
     BI_TRK_SEQ,
@@ -100,10 +102,11 @@ from radical_rt.stream.stream_layout import (
     SS_T_MAX,
 )
 from radical_rt.stream.stream_rules import siru_done, stream_wake
+from radical_rt.stream.temp_wire import parse_temp
 from radical_rt.stream.tracker_queue import IN_RELEASE, PLAN_GO, release_plan, tracker_intake
 
-#: message topic codes (T_OTHER: anything else, e.g. temp: always Python's)
-T_SIRU, T_ST1, T_ST2, T_OTHER = 0, 1, 2, 3
+#: message topic codes (T_OTHER: anything else: always Python's)
+T_SIRU, T_ST1, T_ST2, T_TEMP, T_OTHER = 0, 1, 2, 3, 4
 #: why intake_block returned (module docstring)
 B_END, B_BAIL, B_SIRU, B_SIRU_GAP, B_TRK_TAIL, B_RESUME = range(6)
 
@@ -192,10 +195,28 @@ def _room(siru, bi, si, w_tbus, q_t, g_f, trk_f):
 
 
 @kernel
+def _temp(p, bi, bf, ss, temp_f):
+    """A temp message (payload p) taken in as StreamProcessor.feed takes it: decoded into row
+    BI_TEMPS of temp_f, its t_bus inside the plausibility window and after the previous temp
+    message's (BF_LAST_TEMP), then the newest bus time. False (nothing changed): Python's (not
+    plain, a time jump, a repeat or a step back, no room)."""
+    m = bi[BI_TEMPS]
+    if m >= temp_f.shape[0] or not parse_temp(p, temp_f[m]):
+        return False
+    t = temp_f[m, 0]
+    if outside_window(ss, SS_T_MAX, t, t, 0.0) or not t > bf[BF_LAST_TEMP]:
+        return False
+    bf[BF_LAST_TEMP] = t
+    ss[SS_T_MAX] = max(ss[SS_T_MAX], t)
+    bi[BI_TEMPS] = m + 1
+    return True
+
+
+@kernel
 def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss, si, ev_f, ev_i,
                  q_work, last_q, cI, cF, OF, OI, tags, q_t, q_dt, q_dth, q_st, q_br, q_ve, acc_i,
                  R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, bfb, bib, bbb, blay,
-                 trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq):
+                 trk_f, trk_i, sp_f, sp_i, rows_f, rows_i, fq, temp_f):
     """Messages bi[BI_NEXT]..n−1 (buf uint8: their payloads back to back; topic (≥ n,) T_*,
     off, size (≥ n,) int64: each payload's place in buf) through the stream (module docstring),
     until one needs Python. w_*: the siru decoder's column buffers; ss, si, ev_f, ev_i, q_work:
@@ -207,7 +228,9 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     messages, each one's sample-triggered packets as rows (:func:`radical_rt.stream.stream_rules.
     sample_rows`; sp_f, sp_i:
     their schedule); else one. fq: the FDI's array of the parity sums it takes in the loop
-    (:mod:`radical_rt.fdi.fdi_quiet`). Sets BI_STATUS and BI_NEXT. The array
+    (:mod:`radical_rt.fdi.fdi_quiet`). temp_f (m, TEMP_COLS): a row per temp message taken in
+    (:func:`radical_rt.stream.temp_wire.parse_temp`; BI_TEMPS of them, the caller puts them into
+    the stream's temperatures; BF_LAST_TEMP its last t_bus). Sets BI_STATUS and BI_NEXT. The array
     arguments are used as views that own no memory (:func:`radical_rt.kernels.flat_views.borrow`:
     the kernels it calls pass them on without atomic reference counting)."""
     buf, topic, off, size, bi = borrow(buf), borrow(topic), borrow(off), borrow(size), borrow(bi)
@@ -221,8 +244,9 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
     g_i, g_b, pred, bfb, bib = borrow(g_i), borrow(g_b), borrow(pred), borrow(bfb), borrow(bib)
     bbb, blay, trk_f, trk_i = borrow(bbb), borrow(blay), borrow(trk_f), borrow(trk_i)
     sp_f, sp_i, rows_f, rows_i = borrow(sp_f), borrow(sp_i), borrow(rows_f), borrow(rows_i)
-    fq = borrow(fq)
+    fq, temp_f = borrow(fq), borrow(temp_f)
     bi[BI_RELEASED] = 0
+    bi[BI_TEMPS] = 0
     bi[BI_ROWS] = 0
     bi[BI_SIRU_M] = -1
     for j in range(3):
@@ -251,8 +275,8 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             return
     while i < n and status == B_END:
         code = topic[i]
-        if code == T_OTHER or size[i] > bi[BI_MAX_PAYLOAD] or (code != T_SIRU
-                                                               and bi[BI_CONFLICT + code] != 0):
+        if code == T_OTHER or size[i] > bi[BI_MAX_PAYLOAD] or (
+                (code == T_ST1 or code == T_ST2) and bi[BI_CONFLICT + code] != 0):
             status = B_BAIL
             break
         if not _room(code == T_SIRU, bi, si, w_tbus, q_t, g_f, trk_f):
@@ -288,6 +312,16 @@ def intake_block(buf, topic, off, size, n, bi, bf, w_tbus, w_tt, w_dth, w_st, ss
             if siru_done(bi, bf, ss, io, cnt, cI, cF, pred, sp_f, sp_i, rows_f, rows_i, q_dth, q_dt,
                          q_st, fb, ib, bb, lay):
                 status = B_SIRU
+                break
+        elif code == T_TEMP:
+            if not _temp(p, bi, bf, ss, temp_f):
+                status = B_BAIL
+                break
+            done = _release(True, bi, bf, ss, si, ev_f, ev_i, q_t, q_dt, q_dth, q_st, q_br, q_ve,
+                            acc_i, R1, R2, fb, ib, bb, lay, cfg, io, cnt, g_f, g_i, g_b, pred, cI,
+                            cF, bfb, bib, bbb, blay, trk_f, trk_i, fq)
+            if not done:
+                status = B_RESUME
                 break
         else:
             j = code

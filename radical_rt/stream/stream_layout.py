@@ -46,6 +46,7 @@ BF_WAKE_FDI = BF.add("wake_fdi", unit="s", doc="engine time the FDI's hook has w
 BF_T_NOW = BF.add("t_now", unit="s", doc="newest gyro sample time taken in (in/out)")
 BF_T_IN = BF.add("t_in", unit="s", doc="out: t_bus of the message stopped at (tails)")
 BF_PREV = BF.add("prev", unit="s", doc="out: the previous t_bus of that message's source (tails)")
+BF_LAST_TEMP = BF.add("last_temp", unit="s", doc="in/out: t_bus of the last temp message (-inf: none)")
 BF.freeze()
 
 BI = Fields("stream.block_i", "int64")
@@ -82,4 +83,5 @@ BI_SIRU_LEFT = BI.add("siru_left", doc="in/out: siru messages the call may still
 BI_ROWS = BI.add("rows", doc="out: rows of sample-triggered packets made")
 BI_RESUME = BI.add("resume", doc="in: 1: first the rest of message next's release (BI_R*)")
 BI_FINAL = BI.add("final", doc="in: 1: release everything (watermark inf), no message")
+BI_TEMPS = BI.add("temps", doc="out: temp messages taken in (their rows of the temp array)")
 BI.freeze()
