@@ -84,27 +84,39 @@ def process(inputs: list[str], out_path: str | None, summary_path: str | None = 
     return summary
 
 
+#: at most this many messages per StreamProcessor.feed_arrays call (its outputs are collected
+#: until it returns: a bound keeps them few, and Python's cyclic collector idle)
+SEGMENT = 256
+
+
 def _feed_block(sp: StreamProcessor, blk, writer: ArchiveWriter | None, bar, keep_truth: bool
                 ) -> None:
-    """An archive block (radical_rt.io.chunk_records.Block) through the stream; outputs
-    written; a /truth/params message copied at its place (keep_truth: of the last input)."""
+    """An archive block (radical_rt.io.chunk_records.Block) through the stream in segments of at
+    most :data:`SEGMENT` messages; outputs written; a /truth/params message copied at its place
+    (keep_truth: of the last input; segments end there), else left out."""
     names = [t[1:] for t in blk.names]  # (topics without the leading slash)
-    n = len(blk)
-    cuts = []
+    tidx, off, size = blk.tidx, blk.off, blk.size
+    cuts: list[int] = []
     if "truth/params" in names:
-        cuts = [int(i) for i in np.flatnonzero(blk.tidx == names.index("truth/params"))]
+        is_truth = tidx == names.index("truth/params")
+        if writer and keep_truth:
+            cuts = [int(i) for i in np.flatnonzero(is_truth)]
+        elif is_truth.any():  # nothing to copy: the stream's messages only, in order
+            keep = ~is_truth
+            tidx, off, size = tidx[keep], off[keep], size[keep]
+    n = len(tidx)
     start = 0
     for p in [*cuts, n]:
-        if p > start:
-            out = sp.feed_arrays(blk.buf, names, blk.tidx[start:p], blk.off[start:p],
-                                 blk.size[start:p])
+        for a in range(start, p, SEGMENT):
+            b = min(a + SEGMENT, p)
+            out = sp.feed_arrays(blk.buf, names, tidx[a:b], off[a:b], size[a:b])
             if out and writer:
                 _write(writer, out)
-        if p < n and writer and keep_truth:  # (after the outputs of what came before it)
+        if p < n:  # (after the outputs of what came before it)
             writer.write_raw("/truth/params", blk.payload(p), int(blk.log_ns[p]))
         start = p + 1
     if bar is not None:
-        bar.update(n)
+        bar.update(n - len(cuts))  # (the bar counts the stream's input messages)
 
 
 def _truth(blk, truth: bytes | None) -> bytes | None:
