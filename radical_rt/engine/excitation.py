@@ -2,7 +2,8 @@
 
 Per parameter group g (b, λ, μ, du, dv, φ2) the monitor keeps, every ``period_s`` = 10 s (at a
 closed parity sum, a point the reference and the compiled paths share, so the flag is
-bit-identical between them; about 165 µs per step, 17 µs per second of telemetry), the log of
+bit-identical between them; ≈ 50 µs per step inside a 2-hour run, 5 µs per second of
+telemetry: the numbers come from one compiled call, :mod:`radical_rt.kernels.information`), the log of
 the UD variances of the group's states and the body rotation angle accumulated since the start
 (the angle between successive attitude estimates). Over a sliding window of ``window_s`` s:
 
@@ -40,6 +41,7 @@ import numpy as np
 from radical_rt.contract.conventions import ARCSEC
 from radical_rt.contract.flags import Flag
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
+from radical_rt.kernels.information import excitation_numbers, excitation_work
 
 _BIT = int(Flag.EXCITATION_LOW)
 
@@ -70,14 +72,11 @@ class ExcitationMonitor:
         self._slices = [(g, layout[g]) for g in PARAM_GROUPS]
         self._axis_idx = np.concatenate([np.arange(layout[g].start, layout[g].stop)
                                          for g in ("lam", "du", "dv")])
-        self._axis_block = np.ix_(self._axis_idx, self._axis_idx)  # their rows and columns of P
         self._G = None if triads is None else _axis_rows(layout, *triads)
-        npar = layout.n_states - 3  # group averages over the parameter states, as products
-        count = np.zeros((len(self._slices), npar))
-        for k, (_g, sl) in enumerate(self._slices):
-            count[k, sl.start - 3:sl.stop - 3] = 1.0
-        self._mean = np.zeros((len(self._slices), layout.n_states))
-        self._mean[:, 3:] = count / count.sum(axis=1, keepdims=True)
+        # the kernel's inputs and work arrays (no rows of G without the triads)
+        self._G_rows = self._G if self._G is not None else np.zeros((0, layout.n_states))
+        self._row_var = np.empty(self._G_rows.shape[0])
+        self._work = excitation_work(len(self._axis_idx))
         #: each group's range in the parameter vector (the convergence test)
         self._par_ranges = [(sl.start - 3, sl.stop - 3) for _g, sl in self._slices]
         self._axis_groups = [k for k, (g, _) in enumerate(self._slices) if g in ("lam", "du", "dv")]
@@ -112,28 +111,25 @@ class ExcitationMonitor:
             self._rot += rotation_angle_between(self._q_last, q)
         self._q_last = q.copy()
         self._t_last = t
-        var = P.diagonal().copy()
-        lv = np.log(np.maximum(var, 1e-300))
-        # log det of the joint scaled-axis block (λ, du, dv of every gyro): a rotation about a new
-        # axis informs a_iᵀe there, a combination of the three, before any marginal σ falls
-        blk = P[self._axis_block]
-        dg = blk.diagonal()  # (the outer product of the diagonal, as np.outer makes it)
-        sign, ld = np.linalg.slogdet(blk / np.sqrt(dg[:, None] * dg[None, :]))
-        lv_axes = lv[self._axis_idx].sum()
-        lv = np.concatenate((lv, [ld + lv_axes if sign > 0 else lv_axes]))
+        # ln var of every state and the joint term of the scaled axes: a rotation about a new
+        # axis informs a_iᵀe there, a combination of λ, du, dv, before any marginal σ falls
+        lv = np.empty(P.shape[0] + 1)
+        excitation_numbers(P, self._axis_idx, self._G_rows, lv, self._row_var, self._work)
         h = self._hist
         h.append((t, lv, self._rot))
         while len(h) > 1 and h[1][0] <= t - self.window_s:
             h.popleft()
         t0, lv0, rot0 = h[0]
         rotating = self._rot - rot0 >= self.rotation_min and t - t0 >= 0.5 * self.window_s
-        gains = self._mean @ (0.5 * (lv0[:-1] - lv[:-1]))  # (6,) per group, in one product
-        joint = 0.5 * (lv0[-1] - lv[-1]) / len(self._axis_idx)
-        gains[self._axis_groups] = np.maximum(gains[self._axis_groups], joint)
-        above = [v > c for v, c in zip(var[3:].tolist(), conv_var.tolist(), strict=True)]
+        half = (0.5 * (lv0 - lv)).tolist()
+        joint = half[-1] / len(self._axis_idx)
+        gains = [sum(half[sl]) / (sl.stop - sl.start) for _g, sl in self._slices]
+        for k in self._axis_groups:
+            gains[k] = max(gains[k], joint)
+        above = [v > c for v, c in zip(P.diagonal()[3:].tolist(), conv_var.tolist(), strict=True)]
         conv = [True not in above[a:b] for a, b in self._par_ranges]  # no state above
         groups, warn = {}, []
-        for (g, _sl), gain, conv_g in zip(self._slices, gains.tolist(), conv, strict=True):
+        for (g, _sl), gain, conv_g in zip(self._slices, gains, conv, strict=True):
             excited = gain >= self.gain_min
             groups[g] = {"gain": round(gain, 5), "converged": conv_g, "excited": excited}
             if rotating and not conv_g and not excited:
@@ -141,16 +137,16 @@ class ExcitationMonitor:
         self.last = {"t": t, "window_s": t - t0, "rotation_deg": math.degrees(self._rot - rot0),
                      "rotating": rotating, "groups": groups, "not_excited": warn}
         if self._G is not None:
-            self.last.update(self._axes(P, conv_var))
+            self.last.update(self._axes(conv_var))
         return (flags | _BIT) if warn else (flags & ~_BIT)
 
-    def _axes(self, P: np.ndarray, conv_var: np.ndarray) -> dict[str, Any]:
+    def _axes(self, conv_var: np.ndarray) -> dict[str, Any]:
         """σ of the sense axes' components along body x, y, z (rms over the gyros of
-        σ(a_iᵀe_k), arcsec) and the body axes still to be rotated about (σ above the
-        misalignment convergence threshold)."""
-        G = self._G  # (3n, ns): row of a_iᵀe_k (k major) in the error state
-        var = np.sum((G @ P) * G, axis=1).reshape(3, -1)
-        rms = (np.sqrt(np.maximum(np.mean(var, axis=1), 0.0)) / ARCSEC).tolist()
+        σ(a_iᵀe_k), arcsec; from the step's diag(G P Gᵀ)) and the body axes still to be rotated
+        about (σ above the misalignment convergence threshold)."""
+        var = self._row_var.tolist()  # row k·n + i: a_iᵀe_k
+        n = len(var) // 3
+        rms = [math.sqrt(max(sum(var[k * n:(k + 1) * n]) / n, 0.0)) / ARCSEC for k in range(3)]
         thr = math.sqrt(float(conv_var[self._axis_idx[-1] - 3])) / ARCSEC
         return {"axis_sigma_arcsec": {c: round(v, 4) for c, v in zip("xyz", rms, strict=True)},
                 "rotate_about": [c for c, v in zip("xyz", rms, strict=True) if v > thr]}
