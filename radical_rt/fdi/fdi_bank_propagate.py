@@ -17,9 +17,16 @@ when that would change nothing. The tracker update, the per-sample step and the 
 
 from __future__ import annotations
 
+import numpy as np
+
 from radical_rt._jit import inline_kernel, kernel
-from radical_rt.kernels.flat_views import borrow
-from radical_rt.kernels.propagate import PROP_UNDETERMINED, propagate_window, sample_work
+from radical_rt.kernels.flat_views import borrow, keep
+from radical_rt.kernels.propagate import (
+    PROP_UNDETERMINED,
+    propagate_window,
+    sample_work_in,
+    sample_work_size,
+)
 
 #: columns of the gyro history's float block (radical_rt.fdi.fdi_history.SampleBuffer): t, dt, var_extra, dθ
 COL_T, COL_DT, COL_VAR, COL_DTH = 0, 1, 2, 3
@@ -88,7 +95,9 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
     if z <= a:
         return 0
     nh, n = masks.shape
-    work = sample_work(n)  # one set of work arrays for every hypothesis
+    # one set of work arrays for every hypothesis, in two allocations, used as borrowed views
+    wf, wb = np.empty(sample_work_size(n)), np.empty(n, np.bool_)
+    work = sample_work_in(borrow(wf), borrow(wb), n)
     dth, dt, var = f[:, COL_DTH:], f[:, COL_DT], f[:, COL_VAR]
     for h in range(nh):  # hypothesis by hypothesis, each through the engine's own propagation
         acc_i[0] = 0  # the window count: z − a + 1 never stops the run
@@ -99,6 +108,8 @@ def bank_propagate(f, st, br, i0, end, t_end, masks, xp, A, W, U_ax, V_ax, Minv,
         if flags & PROP_UNDETERMINED:
             undetermined[h] += 1
     tlast[0] = f[z - 1, COL_T]
+    keep(wf)  # (alive until here: the views own no memory)
+    keep(wb)
     return z - a
 
 

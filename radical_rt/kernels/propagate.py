@@ -119,6 +119,27 @@ def sample_work(n):
 
 
 @inline_kernel
+def sample_work_size(n):
+    """Floats of the flat buffer of :func:`sample_work_in` for n gyros."""
+    return 7 * n + 53
+
+
+@inline_kernel
+def sample_work_in(wf, wb, n):
+    """A :class:`SampleWork` for n gyros whose arrays are consecutive pieces of wf
+    (≥ :func:`sample_work_size` (n),) float64 and wb (≥ n,) bool (views: borrowed ones when wf
+    and wb are): two allocations where :func:`sample_work` makes thirteen, for a caller that
+    needs the work arrays for one call only (the FDI bank, per tracker sample)."""
+    o = 4 * n
+    th, F = wf[o:o + 3], wf[o + 3:o + 18].reshape((3, 5))
+    work4, dq = wf[o + 18:o + 22], wf[o + 22:o + 26]
+    R, T = wf[o + 26:o + 35].reshape((3, 3)), wf[o + 35:o + 44].reshape((3, 3))
+    Gm, Mm = wf[o + 44:o + 44 + 3 * n].reshape((3, n)), wf[o + 44 + 3 * n:o + 53 + 3 * n].reshape((3, 3))
+    return SampleWork(wf[0:n], wf[n:2 * n], wf[2 * n:3 * n], wf[3 * n:o], th, F, work4, dq,
+                      wb[0:n], R, T, Gm, Mm)
+
+
+@inline_kernel
 def work_views(wk):
     """The arrays of the :class:`SampleWork` wk as views that own no memory
     (:func:`radical_rt.kernels.flat_views.borrow`): a kernel that takes wk as an argument (alive
