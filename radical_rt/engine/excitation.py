@@ -72,10 +72,10 @@ class ExcitationMonitor:
         self._slices = [(g, layout[g]) for g in PARAM_GROUPS]
         self._axis_idx = np.concatenate([np.arange(layout[g].start, layout[g].stop)
                                          for g in ("lam", "du", "dv")])
-        self._G = None if triads is None else _axis_rows(layout, *triads)
-        # the kernel's inputs and work arrays (no rows of G without the triads)
-        self._G_rows = self._G if self._G is not None else np.zeros((0, layout.n_states))
-        self._row_var = np.empty(self._G_rows.shape[0])
+        # rows of a_iᵀe_k in the error state (none without the triads: no axis report)
+        self._G = (np.zeros((0, layout.n_states)) if triads is None
+                   else _axis_rows(layout, *triads))
+        self._row_var = np.empty(self._G.shape[0])
         self._work = excitation_work(len(self._axis_idx))
         #: each group's range in the parameter vector (the convergence test)
         self._par_ranges = [(sl.start - 3, sl.stop - 3) for _g, sl in self._slices]
@@ -114,7 +114,7 @@ class ExcitationMonitor:
         # ln var of every state and the joint term of the scaled axes: a rotation about a new
         # axis informs a_iᵀe there, a combination of λ, du, dv, before any marginal σ falls
         lv = np.empty(P.shape[0] + 1)
-        excitation_numbers(P, self._axis_idx, self._G_rows, lv, self._row_var, self._work)
+        excitation_numbers(P, self._axis_idx, self._G, lv, self._row_var, self._work)
         h = self._hist
         h.append((t, lv, self._rot))
         while len(h) > 1 and h[1][0] <= t - self.window_s:
@@ -136,7 +136,7 @@ class ExcitationMonitor:
                 warn.append(g)
         self.last = {"t": t, "window_s": t - t0, "rotation_deg": math.degrees(self._rot - rot0),
                      "rotating": rotating, "groups": groups, "not_excited": warn}
-        if self._G is not None:
+        if len(self._G):
             self.last.update(self._axes(conv_var))
         return (flags | _BIT) if warn else (flags & ~_BIT)
 
