@@ -38,7 +38,7 @@ from radical_rt.stream.intake_block import (
     T_TEMP,
     intake_block,
 )
-from radical_rt.stream.telemetry import build
+from radical_rt.stream.telemetry import SMALL, build
 from radical_rt.stream.temp_wire import TEMP_COLS, TEMP_NAMES
 from radical_rt.stream.tracker_queue import IN_RELEASE
 
@@ -247,7 +247,8 @@ class BlockFeed:
     ROW_FIELDS = frozenset(("seq", "t", "q_body_from_inertial", "omega_body", "flags", "mode"))
     #: siru messages one block call may take when their sample packets are made as rows
     K_SIRU = 32
-    _rows_cache: tuple | None = None  # (the specs it was made for, sp_f, sp_i, rows_f, rows_i, k)
+    _rows_cache: tuple | None = None  # (the specs it was made for, sp_f, sp_i, rows_f, rows_i, k,
+    #   per spec whether its fields are the default small packet's)
 
     def _block_rows(self) -> tuple:
         """(sp_f, sp_i, rows_f, rows_i, k_siru) for the sample-triggered packets (the kernel's
@@ -259,24 +260,31 @@ class BlockFeed:
             ok = all(set(spec.fields) <= self.ROW_FIELDS for _key, spec in specs)
             k, n = (self.K_SIRU if ok else 1), len(specs)
             cache = self._rows_cache = (specs, np.zeros((n, 2)), np.zeros((n, 2), np.int64),
-                                        np.zeros((k * n, 8)), np.zeros((k * n, 3), np.int64), k)
+                                        np.zeros((k * n, 8)), np.zeros((k * n, 3), np.int64), k,
+                                        [spec.fields == SMALL for _key, spec in specs])
         sp_f, sp_i = cache[1], cache[2]
         for s, (_key, spec) in enumerate(specs):
             sp_f[s, 0], sp_f[s, 1] = spec.next_t, float(spec.period_s or 0.0)
             sp_i[s, 0], sp_i[s, 1] = spec.decimation or 0, spec.windows
-        return cache[1:]
+        return cache[1:6]
 
     def _rows_done(self, n: int) -> None:
         """The kernel's rows of sample-triggered packets (n) as messages, in order; the packets'
         schedule back into their specs."""
-        _specs, sp_f, sp_i, rows_f, rows_i, _k = self._rows_cache
-        specs = self._sample_specs
+        _specs, sp_f, sp_i, rows_f, rows_i, _k, small = self._rows_cache
+        specs, out, stream = self._sample_specs, self._out, self.streams.index
         if n:
             for (s, flags, mode), row in zip(rows_i[:n].tolist(), rows_f[:n].tolist(), strict=True):
                 key, spec = specs[s]
+                if small[s]:  # the contract's small packet: the map build() makes, written out
+                    spec.seq += 1
+                    out.append((key, {"v": 1, "stream": stream, "seq": spec.seq, "t": row[0],
+                                      "q_body_from_inertial": row[1:5], "flags": flags,
+                                      "mode": MODE_NAME[mode]}))
+                    continue
                 now = {"t": row[0], "q_body_from_inertial": row[1:5], "omega_body": row[5:8],
                        "flags": flags, "mode": MODE_NAME[mode]}
-                self._out.append((key, build(spec, self, now)))
+                out.append((key, build(spec, self, now)))
         for s, (_key, spec) in enumerate(specs):
             spec.next_t, spec.windows = float(sp_f[s, 0]), int(sp_i[s, 1])
 
