@@ -81,6 +81,7 @@ from radical_rt.engine.loop_layout import (
     IO_NIS_SUM_ST,
     IO_SIG_T,
     IO_T,
+    IO_TRK_SEQ0,
     IO_WAKE_EVERY,
 )
 from radical_rt.engine.steps import (
@@ -180,7 +181,7 @@ def _gyro_step(t, dt, dth, status, bridged, var_extra, k, upto, E, cfg, io, cnt,
             if acc_i[0] >= window:
                 close_window(E, cfg, io, cnt)
                 fold(E, io, cnt)
-                if window_due(E, cfg, io, cnt, fq, io[IO_T]):
+                if window_due(E, cfg, io, cnt, fq, io[IO_T], 0):
                     return R_ON_WINDOW, k
     return R_DONE, k
 
@@ -253,7 +254,7 @@ def _tracker_step(j, t_epoch, q_meas, n_stars, valid, R_nom, use_phi, E, cfg, io
     bit = _ST1_EDITED if j == 1 else _ST2_EDITED
     cnt[CNT_FLAGS] = (cnt[CNT_FLAGS] & ~bit) | (bit if edited else 0)
     fold(E, io, cnt)
-    if io[IO_WAKE_EVERY] != 0.0 or window_due(E, cfg, io, cnt, fq, t_epoch):
+    if io[IO_WAKE_EVERY] != 0.0 or window_due(E, cfg, io, cnt, fq, t_epoch, 1):
         return R_ON_WINDOW
     return R_DONE
 
@@ -345,6 +346,7 @@ def run_release(t, dt, dth, status, bridged, var_extra, k, z, ev_f, ev_i, e, n_e
                                             borrow(trk_f), borrow(trk_i))
     fq = borrow(fq)
     begin_call(io, cnt, sig_t, wake_t, wake_e, wake_fdi)
+    io[IO_TRK_SEQ0] = trk_seq0
     if g_end >= 0:
         append_rows(g_f, g_i, g_b, g_end, t, dt, var_extra, dth, status, bridged, k, z)
     E = unpack(fb, ib, bb, lay)

@@ -76,6 +76,8 @@ IO_DIAG_ST1 = IO.add("diag_st1", 7, unit="-, rad, rad",
 IO_DIAG_ST2 = IO.add("diag_st2", 7, unit="-, rad, rad", doc="the same for ST2 (out)")
 IO_NIS_LOCKED_PAR = IO.add("nis_locked_par", doc="sum of the NIS of the parity updates used "
                                                  "while the time line was locked (in/out)")
+IO_TRK_SEQ0 = IO.add("trk_seq0", doc="sequence number of the last sample in the FDI's tracker "
+                                     "history when the call began (set by the call)")
 IO.freeze()
 IO_LAST_ST = IO_LAST_ST1 - 1  # IO_LAST_ST + j: tracker j
 

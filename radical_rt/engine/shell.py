@@ -231,7 +231,7 @@ class LoopShell:
         parity sums it took in the loop, and an attitude reset clears the excitation monitor."""
         cnt = self._cnt
         if self.fdi is not None and self.fdi.fq.item(Q_TAKEN):
-            self.fdi.sums_taken()
+            self.fdi.sums_taken(self)
         added = cnt.item(FL.CNT_TRK_ADDED)
         if added:
             cnt[FL.CNT_TRK_ADDED] = 0

@@ -9,18 +9,23 @@ once a second, cost about a tenth of a run. So the monitor hands the loop this m
 configuration of :mod:`radical_rt.fdi.fdi_detect`), and at a close where nothing else needs the
 hook the loop calls :func:`take_sum`: the detector's own step
 (:func:`radical_rt.fdi.fdi_detect.detector_step`) on a copy of the statistics, kept only when no
-test fires, no snapshot is due and the ring of taken sums has room (the loop itself checks that
-the engine did not restart and that no excitation step is due). During an alarm whose bank the
-loop runs itself the hook of a sum only records the detector's step and the time (the bank
-decides at tracker samples, and hands over there), so the loop then takes every sum at which no
-snapshot is due, whatever the tests say. Every other sum goes to the hook as before, so the
-decisions and records are the same (tests/radical_rt/fdi/test_fdi_quiet.py); the monitor takes
-the taken sums' records after the call (:meth:`radical_rt.fdi.monitor.FaultMonitor.sums_taken`).
+test fires and the ring of taken sums has room (the loop itself checks that the engine did not
+restart and that no excitation step is due). A sum at which the monitor's snapshot is due (every
+5 s) is taken while monitoring too: the loop copies the engine's state into a slot after the
+array's fields, as the hook would have copied it (:func:`put_snapshot`), and the monitor makes
+the snapshot record after the call. During an alarm whose bank the loop runs itself the hook of
+a sum only records the detector's step and the time (the bank decides at tracker samples, and
+hands over there), so the loop then takes every sum at which no snapshot is due, whatever the
+tests say. Every other sum goes to the hook as before, so the decisions and records are the
+same (tests/radical_rt/fdi/test_fdi_quiet.py); the monitor takes the taken sums' records and
+snapshots after the call (:meth:`radical_rt.fdi.monitor.FaultMonitor.sums_taken`).
 """
 
 from __future__ import annotations
 
-from radical_rt._jit import kernel
+import math
+
+from radical_rt._jit import inline_kernel, kernel
 from radical_rt.contract.layout import Fields
 from radical_rt.fdi.fdi_detect import DET, DTH, HIT_NONE, detector_step
 
@@ -44,20 +49,33 @@ Q_DET = QF.add("det", DET.end, doc="the detector's statistics (fdi_detect.DET; i
 Q_TH = QF.add("th", DTH.end, doc="the detector's configuration (fdi_detect.DTH)")
 Q_WORK = QF.add("work", DET.end, doc="scratch: the statistics of a tentative step")
 Q_RING = QF.add("ring", 2 * RING, unit="s, rad", doc="the taken sums' (t0, z), in order (out)")
+Q_SNAP_LEN = QF.add("snap_len", doc="floats of a snapshot slot (snapshot_size; 0: no slots)")
+Q_SNAP_ROOM = QF.add("snap_room", doc="snapshot slots after the fields (QF.end on)")
+Q_SNAPS = QF.add("snaps", doc="snapshots taken since the monitor last looked (out)")
 QF.freeze()
+QF_END = QF.end  # (a plain int: the snapshot slots start here)
+SNAP_SLOTS = 4  # snapshots one compiled call may take before the hook must take the next one
 
 
 @kernel
-def take_sum(fq, t_c, nu, rho, t0, z):
+def take_sum(fq, t_c, nu, rho, t0, z, q, omega, xp, U, d, N, seq):
     """Whether the loop takes the parity sum that closed at engine time t_c [s] (statistic nu,
     rho, t0 [s], z [rad]) for the FDI (module docstring): TAKE_NONE (the hook takes it), else
-    fq[Q_ON]'s mode. fq (QF.end,) in place: when taken the detector's statistics moved and the
-    sum is recorded."""
+    fq[Q_ON]'s mode. fq (QF.end + slots,) in place: when taken the detector's statistics moved
+    and the sum is recorded. A sum at which the monitor's snapshot is due (Q_SNAP_PERIOD after
+    Q_SNAP_T) is taken only while monitoring, with a valid attitude (seq ≥ 0) and a free slot:
+    the engine's state then (q (4,), omega (3,), xp (npar,), U (ns, ns), d (ns,), N (n, n − 3); seq the
+    last tracker sample applied) goes to the next slot (:func:`put_snapshot`)."""
     mode = int(fq[Q_ON])
     if mode == TAKE_NONE:
         return TAKE_NONE
     n = int(fq[Q_TAKEN])
-    if n >= RING or not t_c - fq[Q_SNAP_T] < fq[Q_SNAP_PERIOD]:
+    if n >= RING:
+        return TAKE_NONE
+    snap = not t_c - fq[Q_SNAP_T] < fq[Q_SNAP_PERIOD]
+    if snap and not (mode == TAKE_QUIET and seq >= 0 and math.isfinite(t_c)
+                     and fq[Q_SNAPS] < fq[Q_SNAP_ROOM]
+                     and fq[Q_SNAP_LEN] == snapshot_size(xp.shape[0], d.shape[0], N.size)):
         return TAKE_NONE
     s = fq[Q_WORK:Q_WORK + _N_DET]
     for i in range(_N_DET):
@@ -70,4 +88,48 @@ def take_sum(fq, t_c, nu, rho, t0, z):
     fq[Q_RING + 2 * n], fq[Q_RING + 2 * n + 1] = t0, z
     fq[Q_LAST], fq[Q_LAST + 1], fq[Q_LAST + 2] = nu, rho, t_c
     fq[Q_TAKEN] = n + 1
+    if snap:
+        put_snapshot(fq, t_c, q, omega, xp, U, d, N, seq)
     return mode
+
+
+@inline_kernel
+def snapshot_size(npar, ns, n_null):
+    """Floats of a snapshot slot: t [s], seq, q (4), omega (3), xp (npar), U (ns²), d (ns),
+    N (n_null)."""
+    return 9 + npar + ns * ns + ns + n_null
+
+
+@inline_kernel
+def put_snapshot(fq, t, q, omega, xp, U, d, N, seq):
+    """The engine's state at engine time t [s] (arguments as in :func:`take_sum`) into fq's next
+    snapshot slot (Q_SNAPS of them are in use, each Q_SNAP_LEN floats from QF.end on); the
+    newest snapshot's time Q_SNAP_T becomes t. The monitor makes its Snapshot records from them
+    (radical_rt.fdi.monitor.FaultMonitor.sums_taken)."""
+    k = int(fq[Q_SNAPS])
+    o = QF_END + k * int(fq[Q_SNAP_LEN])
+    fq[o], fq[o + 1] = t, seq
+    o += 2
+    for i in range(4):
+        fq[o + i] = q[i]
+    o += 4
+    for i in range(3):
+        fq[o + i] = omega[i]
+    o += 3
+    for i in range(xp.shape[0]):
+        fq[o + i] = xp[i]
+    o += xp.shape[0]
+    ns = d.shape[0]
+    for r in range(ns):
+        for c in range(ns):
+            fq[o + r * ns + c] = U[r, c]
+    o += ns * ns
+    for i in range(ns):
+        fq[o + i] = d[i]
+    o += ns
+    m = N.shape[1]
+    for r in range(N.shape[0]):
+        for c in range(m):
+            fq[o + r * m + c] = N[r, c]
+    fq[Q_SNAPS] = k + 1
+    fq[Q_SNAP_T] = t

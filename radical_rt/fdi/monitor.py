@@ -57,11 +57,10 @@ from radical_rt.fdi.fdi_detect import (
 from radical_rt.fdi.fdi_history import SampleBuffer, Snapshot, TrackerBuffer
 from radical_rt.fdi.fdi_hypotheses import CONSISTENCY_P, NIS_CAP, HypothesisBank
 from radical_rt.fdi.monitor_isolation import IsolationSteps
+from radical_rt.fdi.monitor_snapshots import BUFFER_S, SNAPSHOT_PERIOD_S, SnapshotSteps
 from radical_rt.fdi.monitor_state import MonitorState
 
 # Fixed design constants (tuning that is not in the parameter table; docs/fdi.md §5).
-SNAPSHOT_PERIOD_S = 5.0  # engine snapshots for the rollback and the bank start
-BUFFER_S = 600.0  # gyro and tracker history kept for the bank
 BANK_MAX_S = 300.0  # a bank that has not decided after this long (from the alarm) is stopped
 # outside an alarm the bookkeeping runs at each parity sum, and at the latest this long after the last
 CHECK_MAX_S = 2.0
@@ -72,11 +71,13 @@ WAKE_EARLY_S = 1e-6  # the compiled loop wakes the hook this much before a time-
 _ALL_FAILED = int(Flag.GYRO_A_FAILED | Flag.GYRO_B_FAILED | Flag.GYRO_C_FAILED | Flag.GYRO_D_FAILED)
 
 # ----------------------------------------------------------------------------- the monitor
-class FaultMonitor(IsolationSteps, MonitorState):
+class FaultMonitor(IsolationSteps, MonitorState, SnapshotSteps):
     """The engine's FDI object (``Engine.fdi``). Parameters come from the engine's active table
     (``fdi_*``, :mod:`radical_rt.contract.params`); defaults apply when a name is missing. The
     alarm/isolation steps come from :class:`radical_rt.fdi.monitor_isolation.IsolationSteps`, the
-    checkpoint state and the detail from :class:`radical_rt.fdi.monitor_state.MonitorState`."""
+    checkpoint state and the detail from :class:`radical_rt.fdi.monitor_state.MonitorState`, the
+    snapshots and the history's trimming from
+    :class:`radical_rt.fdi.monitor_snapshots.SnapshotSteps`."""
 
     #: the bank of an alarm: (engine, Snapshot, t_alarm) → bank (tests/radical_rt/fdi/test_fdi_bank.py and
     #: perf/bench_fdi_bank.py put the Python oracle of tests/oracles here)
@@ -214,8 +215,8 @@ class FaultMonitor(IsolationSteps, MonitorState):
         the loop runs (TAKE_ALARM: ``bank``, :meth:`kernel_bank`), with no bookkeeping pending,
         the current thresholds, a snapshot, no failed gyro and the generation the monitor has seen
         (the loop checks that it stays so); with the newest snapshot's time. It never makes
-        the detector: the hook of a sum does, as before."""
-        fq = self.fq
+        the detector: the hook of a sum does, as before. While monitoring ``fq`` has room for
+        the snapshots the loop may take (:meth:`_snapshot_slots`)."""
         mode = FQ.TAKE_NONE
         if (enabled and not self._sum_seen and self.snaps and not self.failed_by_fdi
                 and not self.flagged_only and not int(eng.flags) & _ALL_FAILED):
@@ -226,15 +227,19 @@ class FaultMonitor(IsolationSteps, MonitorState):
         if mode != FQ.TAKE_NONE and (self.det is None or self._detector_key(eng) != self._th_key
                                   or eng.generation() != self.gen):
             mode = FQ.TAKE_NONE  # (the hook makes the detector of the current table first)
+        if mode == FQ.TAKE_QUIET:
+            self._snapshot_slots(eng)
+        fq = self.fq
         fq[FQ.Q_ON] = mode
         if mode != FQ.TAKE_NONE:
             fq[FQ.Q_SNAP_T] = self.snaps[-1].t
 
-    def sums_taken(self) -> None:
+    def sums_taken(self, eng) -> None:
         """The records of the parity sums the compiled loop took (radical_rt.fdi.fdi_quiet), as
         :meth:`on_parity_sum` and the bookkeeping of :meth:`on_window` keep them: the count,
-        the last ν and ρ, the parity log and the time of the next bookkeeping."""
-        v = self.fq.tolist()
+        the last ν and ρ, the parity log, the time of the next bookkeeping and the snapshots
+        the loop took (:meth:`_slot_snapshots`)."""
+        v = self.fq[:FQ.QF_END].tolist()
         n = int(v[FQ.Q_TAKEN])
         if not n:
             return
@@ -249,6 +254,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
         self._next_check = t1 + CHECK_MAX_S
         if v[FQ.Q_ON] == FQ.TAKE_ALARM:  # (the hook decides at every window during an alarm)
             self._t_decided = t1
+        self._slot_snapshots(eng)
 
     def kernel_bank(self) -> HypothesisBank | None:
         """The running bank when the engine's compiled release may run it on its valid tracker
@@ -302,7 +308,7 @@ class FaultMonitor(IsolationSteps, MonitorState):
             if self.det is not None:
                 self.det.reset()
         if not self.snaps or eng.t - self.snaps[-1].t >= SNAPSHOT_PERIOD_S:
-            self._trim(eng)
+            self._trim(float(eng.t))
             self._snapshot(eng)
         if self.state != "alarm":
             return
@@ -368,27 +374,6 @@ class FaultMonitor(IsolationSteps, MonitorState):
                 self.failed_by_fdi.discard(i)
             elif eng.flags & bit:
                 self.failed_by_fdi.add(i)  # e.g. restored from a checkpoint
-
-    def _trim(self, eng) -> None:
-        t_min = eng.t - BUFFER_S
-        if self.bank is not None:
-            t_min = min(t_min, self.bank.t_last)
-        while self.snaps and self.snaps[0].t < t_min and len(self.snaps) > 1:
-            self.snaps.popleft()
-        t_keep = min(t_min, self.snaps[0].t) if self.snaps else t_min
-        self.gbuf.drop_before(t_keep)
-        keep_seq = self.snaps[0].trk_seq if self.snaps else self.trk_seq
-        if self.bank is not None:
-            keep_seq = min(keep_seq, self.bank.trk_seq)
-        self.trk.drop_through(keep_seq)
-
-    def _snapshot(self, eng) -> None:
-        if not eng.att_valid or not np.isfinite(eng.t):
-            return
-        self.snaps.append(Snapshot(
-            t=float(eng.t), trk_seq=self.trk_seq, gen=self.gen, q=eng.q.copy(),
-            omega=eng.omega.copy(), xp=eng.xp.copy(), U=eng.U.copy(), d=eng.d.copy(),
-            N=eng.N.copy()))
 
 
 __all__ = ["CONSISTENCY_P", "CUSUM_SHIFT", "NIS_CAP", "PERSIST_M", "FaultMonitor", "HypothesisBank",

@@ -14,9 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from radical_rt.fdi.fdi_detect import DTH
 from radical_rt.fdi.fdi_history import Snapshot
-from radical_rt.fdi.fdi_quiet import Q_DET, Q_TH
 
 
 class MonitorState:
@@ -76,11 +74,7 @@ class MonitorState:
         and configuration are views of the array the engine's loop updates (``fq``,
         radical_rt.fdi.fdi_quiet), and become views of the copy's array again."""
         self.__dict__.update(state)
-        det = self.__dict__.get("det")
-        if det is not None:
-            fq = self.fq
-            fq[Q_DET:Q_TH], fq[Q_TH:Q_TH + DTH.end] = det.state, det.config
-            det.state, det.config = fq[Q_DET:Q_TH], fq[Q_TH:Q_TH + DTH.end]
+        self._bind_detector()
 
     # ------------------------------------------------------------------ outputs
     def detail(self) -> dict[str, Any]:

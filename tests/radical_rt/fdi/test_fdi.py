@@ -257,9 +257,10 @@ def test_disabled_monitor_stays_silent(short_fault):
 def test_bookkeeping_runs_at_each_hooked_sum_and_at_least_every_check_max(short_fault, monkeypatch):
     """Outside an alarm the monitor's bookkeeping runs at the window close of each parity sum
     that goes to the window hook (the compiled loop takes the others, radical_rt.fdi.fdi_quiet,
-    but never one at which a snapshot is due: at least one every SNAPSHOT_PERIOD_S) and, with
-    no sums (three gyros after the isolation), every CHECK_MAX_S of engine time."""
+    with the snapshot that is due at one: at least one every SNAPSHOT_PERIOD_S either way) and,
+    with no sums (three gyros after the isolation), every CHECK_MAX_S of engine time."""
     from radical_rt.fdi.monitor import CHECK_MAX_S, SNAPSHOT_PERIOD_S, FaultMonitor
+    from tests.support.fdi_records import record_snapshots
     runs, sums = [], []
     orig_gen, orig_sum = FaultMonitor._check_gen, FaultMonitor.on_parity_sum
 
@@ -273,16 +274,21 @@ def test_bookkeeping_runs_at_each_hooked_sum_and_at_least_every_check_max(short_
 
     monkeypatch.setattr(FaultMonitor, "_check_gen", check_gen)
     monkeypatch.setattr(FaultMonitor, "on_parity_sum", on_sum)
+    snaps = record_snapshots(monkeypatch)
     s = process([str(short_fault)], None)
     assert "GYRO_B_FAILED" in s["flags"]
     t_run = np.array([t for t, _ in runs])
-    # before the fault: a bookkeeping at each hooked sum's own window close, one at least every
-    # snapshot period (plus one sum of 1 s and one window of slack), and none other
+    # before the fault: a bookkeeping at each hooked sum's own window close (an excitation step
+    # due: every 10 s) and none other; a snapshot at least every snapshot period (plus one sum
+    # of 1 s and one window of slack)
     early = [t for t in sums if 1010.0 < t < 1100.0]
-    assert len(early) >= 90.0 / (SNAPSHOT_PERIOD_S + 1.0)
+    assert len(early) >= 90.0 / 12.0
     assert all(np.min(np.abs(t_run - t)) < 1e-9 for t in early)
-    assert np.diff(early).max() <= SNAPSHOT_PERIOD_S + 1.0 + 0.1 * (1 + 1e-3)
     assert sum(1 for t in t_run if 1010.0 < t < 1100.0) <= len(early) + 2
+    t_snap = [rec[0] for rec in snaps if 1010.0 < rec[0] < 1100.0]
+    assert len(t_snap) >= 90.0 / (SNAPSHOT_PERIOD_S + 1.0)
+    assert np.diff(t_snap).min() >= SNAPSHOT_PERIOD_S
+    assert np.diff(t_snap).max() <= SNAPSHOT_PERIOD_S + 1.0 + 0.1 * (1 + 1e-3)
     three = [t for t, st in runs if st == "three-gyro"]
     assert len(three) > 20 and np.median(np.diff(three)) == pytest.approx(CHECK_MAX_S, abs=0.11)
     assert np.diff(three).max() <= CHECK_MAX_S + 0.1 * (1 + 1e-3)

@@ -12,16 +12,18 @@ import pytest
 
 from radical_rt.apps.batch import process
 from radical_rt.fdi.fdi_detect import DET, DTH, HIT_NONE, ParityDetector, detector_step, thresholds
-from radical_rt.fdi.fdi_quiet import Q_ON, Q_TAKEN
+from radical_rt.fdi.fdi_quiet import Q_ON, Q_SNAPS, Q_TAKEN
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.io.archive import ArchiveReader
+from tests.support.fdi_records import record_snapshots
 
 
 def _run(path, out, take: bool):
     """``radical process`` of path to out; take=False: the loop never takes a sum. Returns the
-    summary, every output message, the engine times of the sums the hook ran the detector on
-    and the number of sums the loop took."""
-    hooked, taken = [], []
+    summary, every output message, the engine times of the sums the hook ran the detector on,
+    the number of sums the loop took, every snapshot record made and the number of those the
+    loop took."""
+    hooked, taken, slotted = [], [], []
     orig_sum, orig_taken = FaultMonitor.on_parity_sum, FaultMonitor.sums_taken
     orig_setup = FaultMonitor._quiet_setup
 
@@ -29,9 +31,10 @@ def _run(path, out, take: bool):
         hooked.append(float(eng.t))
         return orig_sum(self, eng, stat)
 
-    def sums_taken(self):
+    def sums_taken(self, eng):
         taken.append(int(self.fq[Q_TAKEN]))
-        return orig_taken(self)
+        slotted.append(int(self.fq[Q_SNAPS]))
+        return orig_taken(self, eng)
 
     def setup(self, eng, *args):
         orig_setup(self, eng, *args)
@@ -42,18 +45,25 @@ def _run(path, out, take: bool):
         m.setattr(FaultMonitor, "on_parity_sum", on_sum)
         m.setattr(FaultMonitor, "sums_taken", sums_taken)
         m.setattr(FaultMonitor, "_quiet_setup", setup)
+        snaps = record_snapshots(m)
         summary = process([str(path)], str(out))
     with ArchiveReader(out) as r:
         msgs = list(r.iter_messages())
-    return summary, msgs, hooked, sum(taken)
+    return summary, msgs, hooked, sum(taken), snaps, sum(slotted)
 
 
 def test_sums_taken_in_the_loop_change_nothing(short_fault, tmp_path):
-    s_hook, m_hook, hooked_all, taken_none = _run(short_fault, tmp_path / "hook.mcap", False)
-    s_loop, m_loop, hooked, taken = _run(short_fault, tmp_path / "loop.mcap", True)
-    assert taken_none == 0 and "GYRO_B_FAILED" in s_hook["flags"]
-    # most sums before the alarm are taken in the loop; the alarm's sum goes to the hook
-    assert taken > 0.6 * len(hooked_all) and len(hooked) + taken == len(hooked_all)
+    s_hook, m_hook, hooked_all, taken_none, snaps_hook, slotted_none = _run(
+        short_fault, tmp_path / "hook.mcap", False)
+    s_loop, m_loop, hooked, taken, snaps_loop, slotted = _run(short_fault, tmp_path / "loop.mcap",
+                                                              True)
+    assert taken_none == 0 and slotted_none == 0 and "GYRO_B_FAILED" in s_hook["flags"]
+    # most sums before the alarm are taken in the loop, those with a snapshot due too; the
+    # alarm's sum goes to the hook
+    assert taken > 0.8 * len(hooked_all) and len(hooked) + taken == len(hooked_all)
+    # the snapshot records from the loop's slots are those the hook made, bit for bit (here the
+    # loop takes those before the alarm: the bank and the three gyros after it leave it to the hook)
+    assert len(snaps_hook) > 20 and slotted > 0.2 * len(snaps_hook) and snaps_loop == snaps_hook
     assert s_loop == s_hook
     assert len(m_loop) == len(m_hook)
     diags = 0
