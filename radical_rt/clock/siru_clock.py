@@ -136,10 +136,15 @@ class SiruClock:
         queue.end += m
         self.took(m)
 
+    def _changed(self) -> None:
+        """The state changed (a compiled intake, flush, reset, restore): drop what is cached
+        from it (:attr:`tag_error_sigma_s`, :attr:`anomaly`, :attr:`counters`)."""
+        self._sig_cache = self._anom_cache = self._counters_cache = None
+
     def took(self, m: int) -> None:
         """After a compiled intake changed the clock's state and released m samples (the queue's
         owner has counted them)."""
-        self._sig_cache = self._anom_cache = None
+        self._changed()
         self._n_tags = m
 
     _tags = np.empty(0, np.int64)
@@ -165,7 +170,7 @@ class SiruClock:
     def reset(self) -> None:
         """Stream discontinuity: forget the sequence and the phase, keep the frequency range and
         the counters. A held-back read is dropped (call :meth:`flush` first to keep it)."""
-        self._sig_cache = self._anom_cache = None
+        self._changed()
         ist, fst = self._I, self._F
         ist[L.I_HAVE_A] = 0
         ist[L.I_HAVE_P] = 0
@@ -180,7 +185,7 @@ class SiruClock:
             fst[L.F_KCYY] += dy * dy / 3.0
 
     def _run(self, t_bus, tt, dtheta, status, final: bool) -> GyroBatch:
-        self._sig_cache = self._anom_cache = None
+        self._changed()
         t_bus = np.ascontiguousarray(t_bus, dtype=np.float64).reshape(-1)
         tt = np.ascontiguousarray(tt, dtype=np.int64).reshape(-1)
         k = t_bus.shape[0]
@@ -235,10 +240,17 @@ class SiruClock:
     # ------------------------------------------------------------------ status
     @property
     def counters(self) -> dict[str, int]:
-        """Cumulative counters (CONTRACT §5 meanings for samples, repeated, missing)."""
-        c = dict(zip(COUNTER_NAMES, self._I[L.C0:L.C0 + len(COUNTER_NAMES)].tolist(), strict=True))
-        c["tag_wraps"] = int(self._I[L.I_NET_HI] - self._I[L.I_NET_LO])
-        return c
+        """Cumulative counters (CONTRACT §5 meanings for samples, repeated, missing); cached until
+        the state changes."""
+        c = self._counters_cache
+        if c is None:
+            c = dict(zip(COUNTER_NAMES, self._I[L.C0:L.C0 + len(COUNTER_NAMES)].tolist(),
+                         strict=True))
+            c["tag_wraps"] = int(self._I[L.I_NET_HI] - self._I[L.I_NET_LO])
+            self._counters_cache = c
+        return dict(c)  # (a copy: the caller may keep it)
+
+    _counters_cache: dict[str, int] | None = None
 
     @property
     def anomaly(self) -> bool:
@@ -338,7 +350,7 @@ class SiruClock:
 
     def set_state(self, state: dict) -> None:
         """Restore a :meth:`get_state` checkpoint (configuration included)."""
-        self._sig_cache = self._anom_cache = None
+        self._changed()
         if state.get("schema") != STATE_SCHEMA:
             raise ValueError(f"unknown clock state schema {state.get('schema')!r}")
         config = ClockConfig(**state["config"])
