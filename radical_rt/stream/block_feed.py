@@ -208,29 +208,33 @@ class BlockFeed:
 
     def _block_controls(self, chunk: int, wake_fdi: float) -> tuple[np.ndarray, np.ndarray]:
         """The block's control arrays with the stream's current settings and wake inputs (the
-        rule of StreamOutputs.wake; its flags part is the kernel's)."""
+        rule of StreamOutputs.wake; its flags part is the kernel's). The settings (no kernel
+        writes them) are written when they differ from those of the last call."""
         bi, bf = self._bi, self._bf
         e = self.engine
-        last = self._last_flags
-        bi[SL.BI_LAST_FLAGS] = -1 if last is None else last
-        bi[SL.BI_GUARD_FLAGS] = _LINK_LOSS if self.link_lost else 0
-        bi[SL.BI_SAMPLE_PACKETS] = 1 if self._sample_packets else 0
-        until = self._conflict.until
-        bi[SL.BI_CONFLICT + 1] = until[1] > -math.inf
-        bi[SL.BI_CONFLICT + 2] = until[2] > -math.inf
-        bi[SL.BI_MAX_PAYLOAD], bi[SL.BI_WINDOW] = self.max_payload_bytes, e.si.prop_window
-        bi[SL.BI_N_GYRO], bi[SL.BI_CHUNK] = e.n_gyro, chunk
-        bi[SL.BI_MAX_BRIDGE] = int(self.clock.config.max_bridge)
+        last, until = self._last_flags, self._conflict.until
+        settings = (-1 if last is None else last, _LINK_LOSS if self.link_lost else 0,
+                    1 if self._sample_packets else 0, until[1] > -math.inf, until[2] > -math.inf,
+                    self.max_payload_bytes, e.si.prop_window, e.n_gyro, chunk,
+                    int(self.clock.config.max_bridge), self.input_gap_s, self._min_interval_s,
+                    e.si.latency_st_s, self.reorder_slack_s, self.last_reject_t,
+                    self.reject_hold_s)
+        if settings != self._settings:
+            self._settings = settings
+            (bi[SL.BI_LAST_FLAGS], bi[SL.BI_GUARD_FLAGS], bi[SL.BI_SAMPLE_PACKETS],
+             bi[SL.BI_CONFLICT + 1], bi[SL.BI_CONFLICT + 2], bi[SL.BI_MAX_PAYLOAD],
+             bi[SL.BI_WINDOW], bi[SL.BI_N_GYRO], bi[SL.BI_CHUNK], bi[SL.BI_MAX_BRIDGE],
+             bf[SL.BF_INPUT_GAP], bf[SL.BF_MIN_INTERVAL], bf[SL.BF_LATENCY], bf[SL.BF_SLACK],
+             bf[SL.BF_LAST_REJECT], bf[SL.BF_REJECT_HOLD]) = settings
         wake_t = self.packet_wake
         if wake_t is None:
             wake_t = self.packet_wake = self._next_packet_t()
-        bf[SL.BF_INPUT_GAP], bf[SL.BF_MIN_INTERVAL] = self.input_gap_s, self._min_interval_s
-        bf[SL.BF_LATENCY], bf[SL.BF_SLACK] = e.si.latency_st_s, self.reorder_slack_s
-        bf[SL.BF_LAST_REJECT], bf[SL.BF_REJECT_HOLD] = self.last_reject_t, self.reject_hold_s
         bf[SL.BF_WAKE_T], bf[SL.BF_WAKE_E], bf[SL.BF_WAKE_FDI] = wake_t, self._guard_wake(), wake_fdi
         bf[SL.BF_T_NOW] = self.t_now
         bf[SL.BF_LAST_TEMP] = self.last_t.get("temp", -math.inf)
         return bi, bf
+
+    _settings: tuple | None = None  # the settings _block_controls last wrote
 
     def _temps_done(self, n: int) -> None:
         """The kernel's rows of the n temp messages it took in, in order: the temperatures and
