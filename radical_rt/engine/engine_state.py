@@ -317,7 +317,7 @@ class EngineState:
 
     def att_sigma(self) -> list[float]:
         """Attitude 1σ, body axes [rad] (from the UD variances)."""
-        return [_sqrt(v) for v in self.variances()[:3].tolist()]
+        return [sigma_of(v) for v in self.variances()[:3].tolist()]
 
     def snapshot(self) -> dict[str, Any]:
         """Everything a telemetry packet may contain (SI, plain Python types)."""
@@ -387,8 +387,8 @@ def _as_list(x: Any) -> list:
     return np.atleast_1d(x).tolist()
 
 
-def _sqrt(v: float) -> float:
-    """``float(np.sqrt(v))`` of a float: math.sqrt (the same correctly rounded result) where it
+def sigma_of(v: float) -> float:
+    """The 1σ of a variance v, ``float(np.sqrt(v))`` of a float: math.sqrt (the same correctly rounded result) where it
     is defined, NumPy's for the rest (a negative or NaN variance gives its NaN)."""
     return math.sqrt(v) if v >= 0.0 else float(np.sqrt(v))
 

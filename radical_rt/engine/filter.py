@@ -23,6 +23,7 @@ sense axes a_i = (1+λ')w_i − du'v_i − dv'u_i, μ' = μ/(1+λ)); :meth:`Engi
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from radical_rt.contract.flags import Flag
 from radical_rt.contract.geometry import Geometry
 from radical_rt.contract.params import ParamTable, to_si
 from radical_rt.contract.state import PARAM_GROUPS, StateLayout
-from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY, EngineState
+from radical_rt.engine.engine_state import EDITED_KEY, USED_KEY, EngineState, sigma_of
 from radical_rt.engine.events import (
     EV_BEGIN_ATTITUDE_INIT,
     EV_FLUSH,
@@ -44,6 +45,7 @@ from radical_rt.engine.shell import LoopShell
 from radical_rt.fdi.monitor import FaultMonitor
 from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.model import refresh_axes
+from radical_rt.kernels.parametrization import output_numbers
 from radical_rt.kernels.timeupdate import ACC_NOISE_T
 
 
@@ -282,6 +284,29 @@ class Engine(LoopShell, EngineState):
         configured = float(self.si.latency_st_s)
         return {"configured_s": configured, "residual_s": tau, "estimate_s": configured + tau,
                 "sigma_s": math.sqrt(max(self.ws.var[k].item(), 0.0))}
+
+    def output_numbers(self) -> dict[str, Any]:
+        """The telemetry fields ``est``, ``sigma``, ``att_sigma`` and ``latency`` (the maps of
+        :meth:`estimates`, :meth:`sigmas`, :meth:`att_sigma`, :meth:`latency_estimate`, the same
+        numbers bit for bit) from one compiled call (:func:`radical_rt.kernels.parametrization.
+        output_numbers`): a packet hook reads them together."""
+        npar = self.xp.shape[0]
+        buf = self._numbers
+        if buf is None or buf.shape[0] != 2 * npar:
+            buf = self._numbers = np.empty(2 * npar)
+        output_numbers(self.xp, self.n_gyro, self.U, self.d, self._jacobian_work(), buf[:npar],
+                       buf[npar:], self.ws.var)
+        v, var = buf.tolist(), self.ws.var.tolist()
+        sig = v[npar:]
+        configured, tau = float(self.si.latency_st_s), self.latency_residual()
+        return {"est": {g: v[sl] for g, sl in self._group_slices},
+                "sigma": {g: sig[sl] for g, sl in self._group_slices},
+                "att_sigma": [sigma_of(x) for x in var[:3]],
+                "latency": {"configured_s": configured, "residual_s": tau,
+                            "estimate_s": configured + tau,
+                            "sigma_s": math.sqrt(max(var[self._lat_col], 0.0))}}
+
+    _numbers: np.ndarray | None = None  # est and sigma of output_numbers (2 npar,)
 
     # ---------------------------------------------------------------- health
     def _check(self, status: int) -> None:

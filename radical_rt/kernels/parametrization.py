@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from radical_rt._jit import kernel
+from radical_rt.kernels.ud import variances
 
 
 def contract_from_internal(xp, n):
@@ -36,6 +37,20 @@ def contract_values(xp, n, J_work):
     out = xp.copy()
     _contract_from_internal(xp, int(n), out, J_work)
     return out
+
+
+@kernel
+def output_numbers(xp, n, U, d, J, est, sig, var):
+    """The numbers of the telemetry fields est, sigma, att_sigma and latency in one call: est
+    (npar,) ← :func:`contract_values`, sig (npar,) ← :func:`contract_sigma_ud`, var (ns,) ←
+    the diagonal of P (:func:`radical_rt.kernels.ud.variances`); xp (npar,) internal, n gyros,
+    U (ns, ns), d (ns,), J (npar, npar) work. The same operations, in the same order, as the
+    three calls."""
+    for i in range(xp.shape[0]):
+        est[i] = xp[i]
+    _contract_from_internal(xp, n, est, J)
+    contract_sigma_ud(xp, n, U, d, J, sig)
+    variances(U, d, var)
 
 
 @kernel

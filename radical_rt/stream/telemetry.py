@@ -192,13 +192,22 @@ def build(spec: PacketSpec, source: Any, override: dict[str, Any] | None = None,
     return msg
 
 
+#: fields the engine computes together in one compiled call (Engine.output_numbers): with a memo,
+#: reading one of them reads all four
+NUMBER_FIELDS = frozenset(("est", "sigma", "att_sigma", "latency"))
+
+
 def read_field(name: str, source: Any, memo: dict[str, Any] | None = None) -> Any:
     """The value of catalogue field ``name`` from ``source``; with ``memo``, read at most once
-    (the value is stored there and shared by every packet built from the same state)."""
+    (the value is stored there and shared by every packet built from the same state; the
+    :data:`NUMBER_FIELDS` are read together)."""
     if memo is None:
         return CATALOGUE[name][1](source)
     v = memo.get(name, _UNSET)
     if v is _UNSET:
+        if name in NUMBER_FIELDS:
+            memo.update(source.engine.output_numbers())
+            return memo[name]
         v = memo[name] = CATALOGUE[name][1](source)
     return v
 

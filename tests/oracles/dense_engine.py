@@ -322,6 +322,10 @@ class DenseEngine(ReferenceEngine):
     def contract_sigma(self) -> np.ndarray:
         return np.sqrt(np.maximum(np.diag(self.contract_params()[1]), 0.0))
 
+    def output_numbers(self) -> dict[str, Any]:  # (from P, not from the compiled UD call)
+        return {"est": self.estimates(), "sigma": self.sigmas(), "att_sigma": self.att_sigma(),
+                "latency": self.latency_estimate()}
+
     def _numeric(self, why: str) -> None:
         self.flags |= Flag.NUMERIC
         self.counters["numeric_faults"] += 1
