@@ -124,3 +124,29 @@ def test_copies_keep_the_detector_in_the_loops_array():
         m2.fq[Q_DET] = 7.5  # (the loop's write)
         assert d2.s_pos == 7.5 and det.s_pos != 7.5
         assert m2.fq[Q_TH:Q_TH + DTH.end].tobytes() == d2.config.tobytes()
+
+
+def test_snapshots_the_same_fed_message_by_message(short_fault):
+    """The shell's path (message by message, as the node feeds; LoopShell._calls) takes
+    snapshots in the loop too, with the same records, bit for bit, as the block intake's."""
+    from radical_rt.engine.filter import Engine
+    from tests.oracles.dense_engine import make_processor, run_archive
+
+    slotted = []
+    orig_taken = FaultMonitor.sums_taken
+
+    def sums_taken(self, eng):
+        slotted.append(int(self.fq[Q_SNAPS]))
+        return orig_taken(self, eng)
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(FaultMonitor, "sums_taken", sums_taken)
+        by_block = record_snapshots(m)
+        process([str(short_fault)], None)
+    n_block, slotted[:] = sum(slotted), []
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(FaultMonitor, "sums_taken", sums_taken)
+        by_message = record_snapshots(m)
+        run_archive(make_processor(Engine), short_fault)
+    assert len(by_block) > 20 and by_message == by_block
+    assert n_block > 0 and sum(slotted) > 0
