@@ -278,12 +278,15 @@ class Engine(LoopShell, EngineState):
 
     def latency_estimate(self) -> dict[str, float]:
         """Tracker latency: configured, residual τ̂ and total estimate, with the 1σ of τ [s]."""
-        k = self._lat_col
         ud.variances(self.U, self.d, self.ws.var)
+        return self._latency_map(self.ws.var[self._lat_col].item())
+
+    def _latency_map(self, var_tau: float) -> dict[str, float]:
+        """:meth:`latency_estimate`'s map, with var_tau [s²] the variance of τ."""
         tau = self.latency_residual()
         configured = float(self.si.latency_st_s)
         return {"configured_s": configured, "residual_s": tau, "estimate_s": configured + tau,
-                "sigma_s": math.sqrt(max(self.ws.var[k].item(), 0.0))}
+                "sigma_s": math.sqrt(max(var_tau, 0.0))}
 
     def output_numbers(self) -> dict[str, Any]:
         """The telemetry fields ``est``, ``sigma``, ``att_sigma`` and ``latency`` (the maps of
@@ -296,15 +299,10 @@ class Engine(LoopShell, EngineState):
             buf = self._numbers = np.empty(2 * npar)
         output_numbers(self.xp, self.n_gyro, self.U, self.d, self._jacobian_work(), buf[:npar],
                        buf[npar:], self.ws.var)
-        v, var = buf.tolist(), self.ws.var.tolist()
-        sig = v[npar:]
-        configured, tau = float(self.si.latency_st_s), self.latency_residual()
-        return {"est": {g: v[sl] for g, sl in self._group_slices},
-                "sigma": {g: sig[sl] for g, sl in self._group_slices},
+        var = self.ws.var.tolist()
+        return {"est": self._by_group(buf[:npar]), "sigma": self._by_group(buf[npar:]),
                 "att_sigma": [sigma_of(x) for x in var[:3]],
-                "latency": {"configured_s": configured, "residual_s": tau,
-                            "estimate_s": configured + tau,
-                            "sigma_s": math.sqrt(max(var[self._lat_col], 0.0))}}
+                "latency": self._latency_map(var[self._lat_col])}
 
     _numbers: np.ndarray | None = None  # est and sigma of output_numbers (2 npar,)
 
