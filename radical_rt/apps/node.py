@@ -30,6 +30,7 @@ This module owns :class:`FilterNode` (lifecycle, filter loop, housekeeping). Aro
 :mod:`radical_rt.apps.node_vehicle` (one served vehicle; the outputs' encoding ``packb``),
 :mod:`radical_rt.apps.command_queue` (commands from the query callbacks to the loop),
 :mod:`radical_rt.apps.node_eos` (end of stream), :mod:`radical_rt.apps.link_watch` (link loss),
+:mod:`radical_rt.apps.node_checkpoint` (periodic and on-demand checkpoints, a mixin),
 :mod:`radical_rt.apps.node_setup` (``build_processors``, ``warm_up``).
 """
 
@@ -48,10 +49,10 @@ from radical_rt.apps import commands
 from radical_rt.apps.cmd_access import AuditLog, handle_query
 from radical_rt.apps.command_queue import CommandQueue
 from radical_rt.apps.link_watch import check_links, input_seen
+from radical_rt.apps.node_checkpoint import NodeCheckpoints
 from radical_rt.apps.node_eos import end_of_stream, release_idle
 from radical_rt.apps.node_timing import LoopTiming
 from radical_rt.apps.node_vehicle import Vehicle, note_reject, packb, report_fifo_losses
-from radical_rt.io import checkpoint as ckpt
 from radical_rt.io.transport import Inbox, Transport
 from radical_rt.io.zauth import Profile
 from radical_rt.io.zenoh_transport import ZenohTransport
@@ -67,7 +68,7 @@ class NodeStartError(RuntimeError):
 
 
 
-class FilterNode:
+class FilterNode(NodeCheckpoints):
     """Serve one or more vehicles over a :class:`~radical_rt.io.transport.Transport`.
 
     processors: vehicle name → StreamProcessor (see :func:`build_processors`). checkpoint_path:
@@ -358,31 +359,6 @@ class FilterNode:
         if checkpoint and self.checkpoint_path:
             self.checkpoint_step()
 
-    def checkpoint_step(self) -> None:
-        """Housekeeping: the periodic checkpoint when it is due (a fleet's node staggers its
-        vehicles' checkpoints instead)."""
-        if self._mono() >= self._next_ckpt:
-            self._periodic_checkpoint()
-
-    def _periodic_checkpoint(self) -> None:
-        """The periodic write. A failure (directory removed, disk full) never stops the filter:
-        it is counted (``checkpoint_failures``), its reason kept (``checkpoint_error``, in diag
-        and status), logged once per failure run, and retried after ``CHECKPOINT_RETRY_S`` (or
-        the period, if shorter) until a write succeeds."""
-        try:
-            self.write_checkpoint()
-        except (commands.CommandError, ckpt.CheckpointError, OSError) as exc:
-            self.checkpoint_failures += 1
-            if self.checkpoint_error is None:
-                log.error("periodic checkpoint failed (will retry): %s", exc)
-            self.checkpoint_error = str(exc)
-            self._next_ckpt = self._mono() + min(self.CHECKPOINT_RETRY_S, self.checkpoint_every_s)
-            return
-        if self.checkpoint_error is not None:
-            log.warning("checkpoint written again after %d failure(s)", self.checkpoint_failures)
-        self.checkpoint_error = None
-        self._next_ckpt = self._mono() + self.checkpoint_every_s
-
     def queue_bytes_used(self) -> int | None:
         """Payload bytes waiting in the input FIFO (None: a FIFO without a byte count)."""
         used = getattr(self._inbox, "queued_bytes", None)
@@ -395,22 +371,3 @@ class FilterNode:
         if pending is not None:
             return int(pending())
         return 0 if self._idle else None
-
-    def write_checkpoint(self, names: list[str] | None = None) -> str:
-        """Write the state of the vehicles ``names`` (None: all) now (filter loop thread, or
-        after it stopped)."""
-        if not self.checkpoint_path:
-            raise commands.CommandError("no checkpoint path: start the node with --checkpoint PATH")
-        chosen = [self.vehicles[n] for n in names] if names is not None else list(self.vehicles.values())
-        try:
-            states = {v.name: ckpt.capture(v.sp, v.name, self.CHECKPOINT_HISTORY) for v in chosen}
-            sink = self.checkpoint_path  # a file, or a callable (a fleet's replica) → where
-            path = sink(states) if callable(sink) else ckpt.write(sink, states)
-        except ckpt.CheckpointError as exc:
-            raise commands.CommandError(str(exc)) from None
-        self.checkpoints_written += 1
-        self.last_checkpoint_mono = self._mono()
-        for v in chosen:
-            v.last_checkpoint_mono = self.last_checkpoint_mono
-        log.debug("checkpoint written to %s", path)
-        return path
