@@ -50,7 +50,6 @@ Q_TH = QF.add("th", DTH.end, doc="the detector's configuration (fdi_detect.DTH)"
 Q_WORK = QF.add("work", DET.end, doc="scratch: the statistics of a tentative step")
 Q_RING = QF.add("ring", 2 * RING, unit="s, rad", doc="the taken sums' (t0, z), in order (out)")
 Q_SNAP_LEN = QF.add("snap_len", doc="floats of a snapshot slot (snapshot_size; 0: no slots)")
-Q_SNAP_ROOM = QF.add("snap_room", doc="snapshot slots after the fields (QF.end on)")
 Q_SNAPS = QF.add("snaps", doc="snapshots taken since the monitor last looked (out)")
 QF.freeze()
 QF_END = QF.end  # (a plain int: the snapshot slots start here)
@@ -74,8 +73,8 @@ def take_sum(fq, t_c, nu, rho, t0, z, q, omega, xp, U, d, N, seq):
         return TAKE_NONE
     snap = not t_c - fq[Q_SNAP_T] < fq[Q_SNAP_PERIOD]
     if snap and not (mode == TAKE_QUIET and seq >= 0 and math.isfinite(t_c)
-                     and fq[Q_SNAPS] < fq[Q_SNAP_ROOM]
-                     and fq[Q_SNAP_LEN] == snapshot_size(xp.shape[0], d.shape[0], N.size)):
+                     and fq[Q_SNAP_LEN] == snapshot_size(xp.shape[0], d.shape[0], N.size)
+                     and QF_END + (fq[Q_SNAPS] + 1) * fq[Q_SNAP_LEN] <= fq.shape[0]):
         return TAKE_NONE
     s = fq[Q_WORK:Q_WORK + _N_DET]
     for i in range(_N_DET):
@@ -95,41 +94,44 @@ def take_sum(fq, t_c, nu, rho, t0, z, q, omega, xp, U, d, N, seq):
 
 @inline_kernel
 def snapshot_size(npar, ns, n_null):
-    """Floats of a snapshot slot: t [s], seq, q (4), omega (3), xp (npar), U (ns²), d (ns),
-    N (n_null)."""
+    """Floats of a snapshot slot (:func:`slot_views`): t [s], seq, q (4), omega (3), xp (npar),
+    U (ns²), d (ns), N (n_null)."""
     return 9 + npar + ns * ns + ns + n_null
+
+
+@inline_kernel
+def slot_views(fq, k, npar, ns, n_rows, n_cols):
+    """Views of snapshot slot k of fq (slots of :func:`snapshot_size` floats from QF.end on), in
+    the slot's order: (t, seq) (2,), q (4,), omega (3,), xp (npar,), U (ns, ns), d (ns,),
+    N (n_rows, n_cols): the one declaration of the slot's layout, for :func:`put_snapshot` and
+    the monitor (radical_rt.fdi.monitor_snapshots)."""
+    o = QF_END + k * snapshot_size(npar, ns, n_rows * n_cols)
+    head, q, omega = fq[o:o + 2], fq[o + 2:o + 6], fq[o + 6:o + 9]
+    o += 9
+    xp = fq[o:o + npar]
+    o += npar
+    U = fq[o:o + ns * ns].reshape((ns, ns))
+    o += ns * ns
+    d = fq[o:o + ns]
+    o += ns
+    return head, q, omega, xp, U, d, fq[o:o + n_rows * n_cols].reshape((n_rows, n_cols))
 
 
 @inline_kernel
 def put_snapshot(fq, t, q, omega, xp, U, d, N, seq):
     """The engine's state at engine time t [s] (arguments as in :func:`take_sum`) into fq's next
-    snapshot slot (Q_SNAPS of them are in use, each Q_SNAP_LEN floats from QF.end on); the
-    newest snapshot's time Q_SNAP_T becomes t. The monitor makes its Snapshot records from them
+    snapshot slot (Q_SNAPS of them are in use); the newest snapshot's time Q_SNAP_T becomes t.
+    The monitor makes its Snapshot records from them
     (radical_rt.fdi.monitor.FaultMonitor.sums_taken)."""
     k = int(fq[Q_SNAPS])
-    o = QF_END + k * int(fq[Q_SNAP_LEN])
-    fq[o], fq[o + 1] = t, seq
-    o += 2
-    for i in range(4):
-        fq[o + i] = q[i]
-    o += 4
-    for i in range(3):
-        fq[o + i] = omega[i]
-    o += 3
-    for i in range(xp.shape[0]):
-        fq[o + i] = xp[i]
-    o += xp.shape[0]
-    ns = d.shape[0]
-    for r in range(ns):
-        for c in range(ns):
-            fq[o + r * ns + c] = U[r, c]
-    o += ns * ns
-    for i in range(ns):
-        fq[o + i] = d[i]
-    o += ns
-    m = N.shape[1]
-    for r in range(N.shape[0]):
-        for c in range(m):
-            fq[o + r * m + c] = N[r, c]
+    head, q_s, omega_s, xp_s, U_s, d_s, N_s = slot_views(fq, k, xp.shape[0], d.shape[0],
+                                                         N.shape[0], N.shape[1])
+    head[0], head[1] = t, seq
+    q_s[:] = q
+    omega_s[:] = omega
+    xp_s[:] = xp
+    U_s[:, :] = U
+    d_s[:] = d
+    N_s[:, :] = N
     fq[Q_SNAPS] = k + 1
     fq[Q_SNAP_T] = t

@@ -59,7 +59,7 @@ class SnapshotSteps:
             return
         fq = np.zeros(FQ.QF.end + FQ.SNAP_SLOTS * size)
         fq[:FQ.QF.end] = self.fq[:FQ.QF.end]
-        fq[FQ.Q_SNAP_LEN], fq[FQ.Q_SNAP_ROOM], fq[FQ.Q_SNAPS] = size, FQ.SNAP_SLOTS, 0.0
+        fq[FQ.Q_SNAP_LEN], fq[FQ.Q_SNAPS] = size, 0.0
         self.fq = fq
         self._bind_detector()
 
@@ -80,20 +80,11 @@ class SnapshotSteps:
         if not k:
             return
         fq[FQ.Q_SNAPS] = 0.0
-        size, npar, ns = int(fq[FQ.Q_SNAP_LEN]), eng.xp.shape[0], eng.d.shape[0]
+        npar, ns, (rows, cols) = eng.xp.shape[0], eng.d.shape[0], eng.N.shape
         for s in range(k):
-            o = FQ.QF.end + s * size
-            t, seq = fq[o:o + 2].tolist()
-            o += 2
-            q, omega = fq[o:o + 4].copy(), fq[o + 4:o + 7].copy()
-            o += 7
-            xp = fq[o:o + npar].copy()
-            o += npar
-            U = fq[o:o + ns * ns].reshape(ns, ns).copy()
-            o += ns * ns
-            d = fq[o:o + ns].copy()
-            o += ns
-            N = fq[o:o + eng.N.size].reshape(eng.N.shape).copy()
+            head, q, omega, xp, U, d, N = FQ.slot_views(fq, s, npar, ns, rows, cols)
+            t, seq = head.tolist()
             self._trim(t)
-            self.snaps.append(Snapshot(t=t, trk_seq=int(seq), gen=self.gen, q=q, omega=omega,
-                                       xp=xp, U=U, d=d, N=N))
+            self.snaps.append(Snapshot(t=t, trk_seq=int(seq), gen=self.gen, q=q.copy(),
+                                       omega=omega.copy(), xp=xp.copy(), U=U.copy(), d=d.copy(),
+                                       N=N.copy()))
