@@ -18,13 +18,8 @@ from radical_rt.engine.filter import Engine
 from radical_rt.kernels import ud, ud_time
 from radical_rt.kernels.updates import gated_update, gated_update_consider
 from replayer.synth import synthesize
-from tests.oracles.dense_engine import (
-    DenseEngine,
-    compare,
-    dense_gated_update,
-    dense_time_update,
-    make_processor,
-)
+from tests.oracles.dense_engine import DenseEngine, compare, make_processor
+from tests.oracles.dense_kernels import dense_gated_update, dense_time_update
 
 N = 27
 
