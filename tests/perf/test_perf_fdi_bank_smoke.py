@@ -20,5 +20,8 @@ def test_bench_fdi_bank_smoke(tmp_path):
     assert res["process"]["nominal_s"] > 0.0 and res["process"]["fault_s"] > 0.0
     x = res["process"]["interval_x_nominal"]  # (None when the interval is within one block)
     assert x is None or (x > 0.0 and len(res["process"]["interval_x_nominal_per_rep"]) >= 3)
+    alone = res["bank_alone"]  # the bank's recorded samples replayed: the same numbers, bit for bit
+    assert alone["replay_equal"] is True and alone["trackers"] == res["bank_trackers"]
+    assert alone["decisions_due"] >= 1 and alone["us_per_tracker"] > 0.0
     md = bench_fdi_bank.markdown(res)
-    assert "× nominal" in md and "`radical process`" in md
+    assert "× nominal" in md and "`radical process`" in md and "Bank alone" in md
