@@ -114,9 +114,10 @@ def test_rate1_pacing_and_round_trip_with_recorder_process(archives, tmp_path):
     assert proc.returncode == 0, stderr
     # a real-time deadline check with a wide margin; a failure under heavy CPU contention from
     # other processes shows in the load average (this machine has few cores)
-    assert pc["p99_s"] < 0.005 and pc["max_s"] < 0.020, (pc, "loadavg", os.getloadavg(),
+    assert pc["p99_s"] < 0.005 and pc["max_s"] < 0.050, (pc, "loadavg", os.getloadavg(),
                                                          "cpus", os.cpu_count())
-    assert abs(res["wall_s"] - res["archive_s"]) < 0.02  # absolute deadlines: no drift
+    # absolute deadlines: no drift (relative sleeps would add up their overshoots over ~7000 puts)
+    assert abs(res["wall_s"] - res["archive_s"]) < 0.05
     stats = json.loads(stdout)
     assert stats["dropped"] == 0
     with warnings.catch_warnings():
