@@ -95,9 +95,8 @@ def time_bank(rec: dict[str, Any], repetitions: int) -> dict[str, Any]:
     loop), each from a fresh copy of the bank. Returns tracker samples, gyro rows, µs per
     tracker sample (min and median), the samples at which a decision was due in the last
     replay, and replay_equal (its log-likelihoods bit-equal to the recorded run's)."""
-    f = np.ascontiguousarray(np.concatenate([r[0] for r in rec["rows"]]))
-    st = np.ascontiguousarray(np.concatenate([r[1] for r in rec["rows"]]))
-    br = np.ascontiguousarray(np.concatenate([r[2] for r in rec["rows"]]))
+    f, st, br = (np.ascontiguousarray(np.concatenate(block))
+                 for block in zip(*rec["rows"], strict=True))
     trk = rec["trackers"]
     epoch = np.array([s[0] for s in trk])
     st2 = np.array([s[1] for s in trk], dtype=np.bool_)
